@@ -1,0 +1,18 @@
+"""Conventions shared by every part of physdyn_ros (REP 103 units and frames).
+
+All quantities are SI: metres, seconds, kilograms, radians, newton-seconds for impulses.
+The table frame is right-handed with z up; the support plane is z = 0.
+Quaternions are ordered (x, y, z, w), as in geometry_msgs/Quaternion.
+"""
+from __future__ import annotations
+
+#: Time between two recorded / predicted states, seconds (15 Hz, as in the paper).
+DT: float = 1.0 / 15.0
+#: Standard gravity, m/s^2 (points along -z).
+GRAVITY: float = 9.81
+#: An object counts as toppled once the angle between its up axis and world up exceeds this (radians).
+TOPPLE_ANGLE: float = 0.7853981633974483  # 45 degrees
+#: Default fixed frame of the table (REP 105 name for a world-fixed frame).
+TABLE_FRAME: str = "world"
+#: Points in the canonical object cloud fed to the shape encoder.
+NUM_POINTS: int = 1024
