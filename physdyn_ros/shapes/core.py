@@ -1,0 +1,183 @@
+"""The `Shape` type and the mesh maths it needs (numpy + open3d; no pybullet, no scipy).
+
+A shape lives in its *object frame*: origin at the centre of mass of the solid (uniform density), z = the
+shape's up axis (upright when the orientation is the identity). Mass properties are computed exactly from the
+closed triangle mesh with the divergence theorem (signed tetrahedra), so they follow any per-axis scale.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..conventions import NUM_POINTS
+
+#: Density used for every simulated object, kg/m^3 (constant across a dataset, as in the paper). The value only
+#: sets the mass scale: with impulses drawn as mass * velocity and Coulomb friction, trajectories do not depend on it.
+DEFAULT_DENSITY: float = 500.0
+
+
+@dataclass(frozen=True)
+class MassProperties:
+    """Mass properties of a solid of uniform density, in the object frame."""
+
+    volume: float  # m^3
+    mass: float  # kg
+    com: np.ndarray  # (3,) m, centre of mass (~0 for a Shape, whose origin is its COM)
+    inertia: np.ndarray  # (3, 3) kg m^2, inertia tensor about the COM, object axes
+    principal_moments: np.ndarray  # (3,) kg m^2, eigenvalues of `inertia` (ascending)
+    principal_axes: np.ndarray  # (3, 3) rotation, columns = principal axes in the object frame (det +1)
+
+
+def mesh_moments(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Volume, first moment (3,) and second moment matrix ∫ x x^T dV (3, 3) of a closed, outward-oriented mesh.
+
+    Each face and the origin span a signed tetrahedron; for a tetrahedron with one vertex at the origin and the
+    others a, b, c: V = det[a b c] / 6, ∫x dV = V (a+b+c) / 4, ∫x x^T dV = V/20 (aa^T + bb^T + cc^T + s s^T), s = a+b+c.
+    """
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    s = a + b + c
+    first = (vol[:, None] * s).sum(0) / 4.0
+    outer = (np.einsum("ni,nj->nij", a, a) + np.einsum("ni,nj->nij", b, b) + np.einsum("ni,nj->nij", c, c)
+             + np.einsum("ni,nj->nij", s, s))
+    second = np.einsum("n,nij->ij", vol, outer) / 20.0
+    return float(vol.sum()), first, second
+
+
+def mass_properties(vertices: np.ndarray, faces: np.ndarray, density: float = DEFAULT_DENSITY,
+                    scale: np.ndarray | tuple[float, float, float] = (1.0, 1.0, 1.0)) -> MassProperties:
+    """Mass properties of the closed mesh scaled per axis by `scale` (object frame), at `density` kg/m^3."""
+    scale = np.asarray(scale, dtype=np.float64).reshape(3)
+    if np.any(scale <= 0):
+        raise ValueError(f"scale must be positive, got {scale.tolist()}")
+    if not density > 0:
+        raise ValueError(f"density must be positive, got {density}")
+    volume, first, second = mesh_moments(np.asarray(vertices, dtype=np.float64) * scale, faces)
+    if not volume > 1e-12:
+        raise ValueError(f"mesh has no positive volume ({volume:.3g} m^3): it is not closed or its faces point inwards")
+    com = first / volume
+    # Second moment about the COM, then inertia I = tr(C) Id - C (per unit density, times density).
+    c_com = (second - volume * np.outer(com, com)) * density
+    inertia = np.trace(c_com) * np.eye(3) - c_com
+    inertia = 0.5 * (inertia + inertia.T)
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return MassProperties(volume=volume, mass=volume * density, com=com, inertia=inertia,
+                          principal_moments=moments, principal_axes=axes)
+
+
+def orient_outward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Flip all faces if the mesh encloses a negative signed volume (consistently inward-wound mesh)."""
+    volume, _, _ = mesh_moments(vertices, faces)
+    return faces[:, ::-1].copy() if volume < 0 else faces
+
+
+def _o3d_mesh(vertices: np.ndarray, faces: np.ndarray):
+    import open3d as o3d
+
+    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, dtype=np.float64)),
+                                     o3d.utility.Vector3iVector(np.asarray(faces, dtype=np.int32)))
+
+
+def convex_hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Convex hull (vertices, outward faces) of a point set, via open3d's qhull."""
+    import open3d as o3d
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) < 4:
+        raise ValueError(f"a convex hull needs at least 4 points, got {len(pts)}")
+    try:
+        hull, _ = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).compute_convex_hull()
+    except RuntimeError as exc:  # qhull refuses flat / degenerate sets
+        raise ValueError(f"points do not span a 3D convex hull: {exc}") from None
+    v = np.asarray(hull.vertices, dtype=np.float64)
+    f = orient_outward(v, np.asarray(hull.triangles, dtype=np.int64))
+    return v, f
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int = NUM_POINTS, seed: int = 0) -> np.ndarray:
+    """`n` points uniformly distributed over the mesh surface (area-weighted), float32, via open3d.
+
+    open3d's sampler draws from its global generator; seeding it right before the call makes the cloud a pure
+    function of (mesh, seed).
+    """
+    import open3d as o3d
+
+    o3d.utility.random.seed(int(seed) % (2**31))
+    pcd = _o3d_mesh(vertices, faces).sample_points_uniformly(number_of_points=int(n))
+    return np.asarray(pcd.points, dtype=np.float32)
+
+
+@dataclass(eq=False)
+class Shape:
+    """A rigid object shape in its object frame (origin = centre of mass, z = up, metres).
+
+    `convex` says whether the convex hull is an exact collision shape (convex solids); otherwise the simulator
+    uses a convex decomposition. `points` are NUM_POINTS uniform surface samples in the same frame.
+    """
+
+    name: str
+    category: str
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int64, outward winding
+    convex: bool
+    points: np.ndarray  # (NUM_POINTS, 3) float32
+    params: dict = field(default_factory=dict)  # generator parameters (procedural) or source file (loaded)
+    _hull: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False)
+
+    @property
+    def extents(self) -> np.ndarray:
+        """(3,) axis-aligned size of the unscaled shape, m."""
+        return self.vertices.max(0) - self.vertices.min(0)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) min and max corner of the unscaled shape in the object frame."""
+        return np.stack([self.vertices.min(0), self.vertices.max(0)])
+
+    def mass_properties(self, scale=(1.0, 1.0, 1.0), density: float = DEFAULT_DENSITY) -> MassProperties:
+        return mass_properties(self.vertices, self.faces, density, scale)
+
+    def hull(self) -> tuple[np.ndarray, np.ndarray]:
+        """Convex hull (vertices, faces) of the unscaled shape (cached)."""
+        if self._hull is None:
+            self._hull = convex_hull(self.vertices)
+        return self._hull
+
+    def fingerprint(self) -> str:
+        """sha256 of the geometry: a cache key for derived data (convex decompositions)."""
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.vertices, dtype=np.float64).tobytes())
+        h.update(np.ascontiguousarray(self.faces, dtype=np.int64).tobytes())
+        return h.hexdigest()
+
+
+def make_shape(name: str, category: str, vertices: np.ndarray, faces: np.ndarray, convex: bool,
+               seed: int = 0, params: dict | None = None, num_points: int = NUM_POINTS) -> Shape:
+    """Build a Shape from a closed mesh in any frame with z up: orients it outward, moves the origin to its centre
+    of mass and samples the surface cloud."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = orient_outward(vertices, np.asarray(faces, dtype=np.int64))
+    mp = mass_properties(vertices, faces, density=1.0)
+    vertices = vertices - mp.com
+    points = sample_surface(vertices, faces, num_points, seed)
+    return Shape(name=name, category=category, vertices=vertices, faces=faces, convex=bool(convex),
+                 points=points, params=dict(params or {}))
+
+
+def shape_from_points(points: np.ndarray, name: str = "hull", category: str = "points") -> Shape:
+    """A convex Shape made of the convex hull of a point cloud given in its object frame.
+
+    The cloud frame is kept as is (no re-centring): its origin is taken to be the centre of mass, as for the
+    canonical clouds of a dataset. The inertia is that of the solid hull about this origin.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("point cloud contains NaN or inf")
+    v, f = convex_hull(pts)
+    return Shape(name=name, category=category, vertices=v, faces=f, convex=True,
+                 points=np.asarray(points, dtype=np.float32).reshape(-1, 3), params={"source": "points"})
