@@ -1,0 +1,94 @@
+"""The paper's relative losses (Eq. 1), made safe at zero.
+
+    L_x   = ||x_hat - x||_2 / (||x_hat||_2 + ||x||_2 + eps)    for d_vel, d_angvel, d_pos
+    L_rot = ||r_hat - r||_1 / (||r_hat||_1 + ||r||_1 + eps)    for the axis-angle increment
+    L_cls = BCE(topple logit, label)
+    L     = w_v L_v + w_w L_w + w_p L_p + w_rot L_rot + w_cls L_cls   (paper: all 1, w_cls = 2)
+
+Relative errors weigh a slow object's small increments as much as a fast one's large ones (the paper's
+reason). The original had no eps, so a resting object (both vectors exactly 0) gave 0/0 = NaN; with eps the
+loss is 0 there, and it is ~||x_hat|| / eps for a prediction near a zero target (an L1 pull towards rest).
+The norm's gradient at 0 is defined as 0, so identical prediction and target give a zero, finite gradient.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+#: (name, slice of the 12 normalised increments)
+COMPONENTS = (("vel", slice(0, 3)), ("angvel", slice(3, 6)), ("pos", slice(6, 9)), ("rot", slice(9, 12)))
+
+
+@dataclass
+class LossConfig:
+    """Weights and the stabilising epsilon (the `loss:` section of a config YAML)."""
+
+    w_vel: float = 1.0
+    w_angvel: float = 1.0
+    w_pos: float = 1.0
+    w_rot: float = 1.0
+    w_topple: float = 2.0
+    eps: float = 1e-3  # in normalised units (increments are ~1 there)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "LossConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown loss config keys: {unknown} (known: {sorted(known)})")
+        cfg = cls(**{k: float(v) for k, v in data.items()})
+        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple) < 0:
+            raise ValueError("loss.eps must be > 0 and the loss weights >= 0")
+        return cfg
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def safe_l2(x: Tensor) -> Tensor:
+    """Euclidean norm over the last dim whose gradient at 0 is 0 (torch's sqrt would give NaN)."""
+    sq = (x * x).sum(-1)
+    nonzero = sq > 0
+    return torch.where(nonzero, torch.sqrt(torch.where(nonzero, sq, torch.ones_like(sq))), torch.zeros_like(sq))
+
+
+def relative_l2(pred: Tensor, target: Tensor, eps: float) -> Tensor:
+    """Per-vector relative L2 error (...,) of (..., 3) vectors."""
+    return safe_l2(pred - target) / (safe_l2(pred) + safe_l2(target) + eps)
+
+
+def relative_l1(pred: Tensor, target: Tensor, eps: float) -> Tensor:
+    """Per-vector relative L1 error (...,) of (..., 3) vectors (abs has subgradient 0 at 0)."""
+    return (pred - target).abs().sum(-1) / (pred.abs().sum(-1) + target.abs().sum(-1) + eps)
+
+
+def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
+                  mask: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+    """Total loss and its components (detached) for raw outputs (B, T, 13).
+
+    target: normalised increments (B, T, 12) (DynamicsModel.normalize_targets); topple: labels (B, T) in {0, 1};
+    mask: optional (B, T) weights (1 = counted), e.g. to drop steps past the end of a short sequence.
+    """
+    if raw.shape[:-1] != target.shape[:-1] or raw.shape[-1] != 13 or target.shape[-1] != 12:
+        raise ValueError(f"loss shapes: raw {tuple(raw.shape)} must be (..., 13) and target "
+                         f"{tuple(target.shape)} (..., 12) over the same steps")
+    per_step = {}
+    for name, sl in COMPONENTS:
+        fn = relative_l1 if name == "rot" else relative_l2
+        per_step[name] = fn(raw[..., sl], target[..., sl], cfg.eps)
+    per_step["topple"] = F.binary_cross_entropy_with_logits(raw[..., 12], topple.to(raw.dtype), reduction="none")
+    if mask is None:
+        means = {k: v.mean() for k, v in per_step.items()}
+    else:
+        w = mask.to(raw.dtype)
+        denom = w.sum().clamp_min(1.0)
+        means = {k: (v * w).sum() / denom for k, v in per_step.items()}
+    total = (cfg.w_vel * means["vel"] + cfg.w_angvel * means["angvel"] + cfg.w_pos * means["pos"]
+             + cfg.w_rot * means["rot"] + cfg.w_topple * means["topple"])
+    parts = {k: v.detach() for k, v in means.items()}
+    parts["total"] = total.detach()
+    return total, parts

@@ -1,0 +1,505 @@
+"""`physdyn train`: train the dynamics model on a dataset (CPU or CUDA, single process or DDP via torchrun).
+
+    physdyn train --config config/model_default.yaml --data DATA --out runs/default [--resume] \
+        [--max-epochs N] [--time-limit 2h] [--set train.batch_size=256 ...]
+    torchrun --nproc_per_node 2 -m physdyn_ros.cli train ...      (DDP; gloo on CPU, nccl on CUDA)
+
+The run folder holds config.yaml (resolved), train_log.jsonl (one JSON line per epoch), checkpoint_last.pt
+(full state, rewritten every epoch, every train.checkpoint_every_s seconds and on a time limit / SIGTERM /
+Ctrl-C), checkpoint_best.pt (full state at the best validation metric) and model_best.pt (the same weights
+without optimizer state: what ships as physdyn_ros/models/default.pt).
+
+Reproducibility: the model is initialised from train.seed; epoch e visits the training simulations in the
+order of a DistributedSampler seeded with (seed, e), and batch b draws its window starts and point subsets
+from a generator seeded with (seed, e, b, rank). No data randomness is carried in state, so a run resumed
+from checkpoint_last.pt (saved at a batch boundary) continues exactly as if it had never stopped.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import os
+import signal
+import sys
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import torch
+import yaml
+
+from .checkpoint import CheckpointError, load_checkpoint, restore_rng, save_checkpoint
+from .losses import LossConfig, dynamics_loss
+from .model import DynamicsModel, ModelConfig, count_parameters
+
+
+SELECT_METRICS = ("val_loss", "val_closed_loss", "val_final_pos_cm")
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation (the `train:` section of a config YAML)."""
+
+    seed: int = 0
+    epochs: int = 200  # one epoch = one random window per training simulation (the paper's epoch)
+    batch_size: int = 128  # global batch; each of W DDP processes takes batch_size / W
+    window: int = 15  # frames per training window (14 predicted steps)
+    lr: float = 1e-3
+    lr_decay: float = 0.75  # lr *= lr_decay every lr_decay_every sequences ...
+    lr_decay_every: int = 300_000  # ... (paper: 0.75 per 300k sequences, staircase, floored at lr_min)
+    lr_staircase: bool = True
+    lr_min: float = 1e-5
+    weight_decay: float = 0.0
+    grad_clip: Optional[float] = None  # max gradient norm; None = no clipping (paper)
+    rollout_fraction: float = 0.0  # fraction of batches trained closed-loop (own velocities fed back); paper 0
+    val_every: int = 1  # epochs between validations (paper: 100 epochs of its much larger data)
+    val_windows_per_sim: int = 2  # fixed validation windows per validation simulation
+    val_seed: int = 0  # seed of the fixed validation windows (independent of `seed`)
+    val_rollout_horizon: int = 60  # also log roll-out errors on whole validation sequences (0 = off)
+    select_metric: str = "val_loss"  # val_loss | val_closed_loss | val_final_pos_cm (median, whole sequences)
+    threads: Optional[int] = None  # torch CPU threads (None: torch's default)
+    checkpoint_every_s: float = 600.0
+
+    def __post_init__(self) -> None:
+        if self.select_metric not in SELECT_METRICS:
+            raise ValueError(f"train.select_metric must be one of {SELECT_METRICS}, got {self.select_metric!r}")
+        if self.batch_size < 1 or self.window < 2 or self.epochs < 0 or self.val_every < 1:
+            raise ValueError("train: batch_size >= 1, window >= 2, epochs >= 0 and val_every >= 1 are required")
+        if not 0.0 <= self.rollout_fraction <= 1.0:
+            raise ValueError("train.rollout_fraction must be in [0, 1]")
+
+
+@dataclass
+class DataConfig:
+    """Which simulations to train on (the `data:` section): leave-one-category-out is an exclusion here."""
+
+    categories: Optional[list[str]] = None
+    exclude_categories: Optional[list[str]] = None
+    max_train_sims: Optional[int] = None  # use only the first N training simulations (debugging, overfit tests)
+
+
+def _section(cls: type, data: Optional[dict[str, Any]], name: str) -> Any:
+    data = dict(data or {})
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"unknown {name} config keys: {unknown} (known: {sorted(known)})")
+    return cls(**data)
+
+
+def resolve_config(raw: dict[str, Any]) -> dict[str, Any]:
+    """Validate a config dict (model / loss / train / data sections) and fill in defaults."""
+    unknown = sorted(set(raw) - {"model", "loss", "train", "data"})
+    if unknown:
+        raise ValueError(f"unknown config sections {unknown} (expected model, loss, train, data)")
+    model = ModelConfig.from_dict(dict(raw.get("model") or {}))
+    loss = LossConfig.from_dict(dict(raw.get("loss") or {}))
+    train = _section(TrainConfig, raw.get("train"), "train")
+    data = _section(DataConfig, raw.get("data"), "data")
+    return {"model": model.to_dict(), "loss": loss.to_dict(), "train": asdict(train), "data": asdict(data)}
+
+
+def load_config(path: str | Path, overrides: Optional[list[str]] = None) -> dict[str, Any]:
+    """Read a YAML config and apply `section.key=value` overrides (values parsed as YAML)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file {path} does not exist")
+    raw = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}: a config is a mapping of sections")
+    apply_overrides(raw, overrides or [])
+    return resolve_config(raw)
+
+
+def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> None:
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise ValueError(f"--set expects section.key=value, got {item!r}")
+        section, name = key.split(".", 1)
+        raw.setdefault(section, {})
+        if raw[section] is None:
+            raw[section] = {}
+        raw[section][name] = yaml.safe_load(value)
+
+
+def lr_factor(step: int, cfg: dict[str, Any]) -> float:
+    """Multiplier of the base lr after `step` optimizer steps (sequences = step * batch_size)."""
+    seen = step * cfg["batch_size"] / max(cfg["lr_decay_every"], 1)
+    exponent = math.floor(seen) if cfg["lr_staircase"] else seen
+    return max(cfg["lr_decay"] ** exponent, cfg["lr_min"] / cfg["lr"])
+
+
+def parse_duration(text: Optional[str]) -> Optional[float]:
+    """'90', '90s', '30m', '2h' -> seconds."""
+    if text is None:
+        return None
+    text = str(text).strip().lower()
+    mult = {"s": 1, "m": 60, "h": 3600}.get(text[-1:], None)
+    try:
+        value = float(text[:-1]) * mult if mult else float(text)
+    except ValueError:
+        raise ValueError(f"--time-limit expects seconds or a number with s/m/h, got {text!r}") from None
+    if value <= 0:
+        raise ValueError("--time-limit must be positive")
+    return value
+
+
+# --------------------------------------------------------------------------------------------- distributed
+@dataclass
+class Dist:
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.world > 1
+
+
+def init_distributed(device: str) -> Dist:
+    """Join the process group when launched by torchrun (WORLD_SIZE > 1)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return Dist()
+    import torch.distributed as dist
+
+    backend = "nccl" if device.startswith("cuda") else "gloo"
+    if not dist.is_initialized():
+        dist.init_process_group(backend=backend)
+    return Dist(rank=dist.get_rank(), world=dist.get_world_size(), local_rank=int(os.environ.get("LOCAL_RANK", "0")))
+
+
+def _all_true(flag: bool, d: Dist, device: torch.device) -> bool:
+    """OR of a stop flag over processes (all must stop at the same batch)."""
+    if not d.enabled:
+        return flag
+    import torch.distributed as dist
+
+    t = torch.tensor([1.0 if flag else 0.0], device=device)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return bool(t.item() > 0)
+
+
+def _barrier(d: Dist) -> None:
+    if d.enabled:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
+# ------------------------------------------------------------------------------------------------ training
+class _StopFlag:
+    """SIGTERM / first Ctrl-C ask for a clean stop at the next batch boundary (a second Ctrl-C aborts)."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopFlag":
+        if threading_main():  # signal handlers can only be set from the main thread
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.requested and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+def threading_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+
+
+def batch_loss(model: torch.nn.Module, core: DynamicsModel, batch: dict[str, torch.Tensor], loss_cfg: LossConfig,
+               feedback: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    raw = model(batch["cloud"], batch["vel"], batch["angvel"], feedback)
+    target = core.normalize_targets(batch["d_vel"], batch["d_angvel"], batch["d_pos"], batch["d_rot"])
+    return dynamics_loss(raw, target, batch["topple"], loss_cfg)
+
+
+@torch.no_grad()
+def validate(core: DynamicsModel, val_ds: Any, val_index: np.ndarray, val_starts: np.ndarray, cfg: dict[str, Any],
+             loss_cfg: LossConfig, device: torch.device) -> dict[str, float]:
+    """Loss on the fixed validation windows, teacher-forced (val_*) and closed-loop (val_closed_*), and the
+    median final pose error of whole roll-outs of the validation sequences that do not topple."""
+    from .windows import make_windows
+
+    core.eval()
+    sums: dict[str, float] = {}
+    count = 0
+    for i in range(0, len(val_index), 512):
+        batch = _to(make_windows(val_ds, val_index[i:i + 512], val_starts[i:i + 512], cfg["train"]["window"],
+                                 core.cfg.num_points, None), device)
+        n = len(val_index[i:i + 512])
+        for mode, feedback in (("", False), ("closed_", True)):  # teacher-forced and closed-loop windows
+            _, parts = batch_loss(core, core, batch, loss_cfg, feedback)
+            for k, v in parts.items():
+                sums[f"val_{mode}{k}"] = sums.get(f"val_{mode}{k}", 0.0) + float(v) * n
+        count += n
+    out = {k: v / max(count, 1) for k, v in sums.items()}
+    out["val_loss"] = out.pop("val_total")
+    out["val_closed_loss"] = out.pop("val_closed_total")
+    horizon = min(int(cfg["train"]["val_rollout_horizon"]), val_ds.num_frames - 1)
+    if horizon > 0:
+        from .evaluate import ground_truth, model_rollouts, pose_errors
+
+        keep = np.flatnonzero(val_ds.topple_index < 0)
+        if keep.size:
+            pred = model_rollouts(core, val_ds, keep, horizon, 1, 256, device)
+            err = pose_errors(pred, ground_truth(val_ds, keep, horizon))
+            out["val_final_pos_cm"] = float(np.median(err["pos"][:, -1]))
+            out["val_final_rot_deg"] = float(np.median(err["rot"][:, -1]))
+    return out
+
+
+def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Optional[str] = None,
+          time_limit: Optional[float] = None, device: str = "cpu", progress: bool = True,
+          allow_data_change: bool = False) -> dict[str, Any]:
+    """Train (or resume) and return a summary. `cfg` is a resolved config (resolve_config)."""
+    from torch.utils.data.distributed import DistributedSampler
+
+    from .windows import WindowDataset, compute_stats, dataset_identity, fixed_windows, load_sims
+
+    t_start = time.monotonic()
+    d = init_distributed(device)
+    if device.startswith("cuda"):
+        dev = torch.device("cuda", d.local_rank if d.enabled else (torch.device(device).index or 0))
+        torch.cuda.set_device(dev)
+    else:
+        dev = torch.device("cpu")
+    out = Path(out)
+    tcfg = cfg["train"]
+    if tcfg["threads"]:
+        torch.set_num_threads(int(tcfg["threads"]))
+
+    ckpt: Optional[dict[str, Any]] = None
+    if resume is not None:
+        ckpt = load_checkpoint(resume, map_location="cpu")
+        for section in ("model", "loss", "data"):
+            if ckpt["config"].get(section) != cfg[section]:
+                raise CheckpointError(f"{resume}: its {section} config differs from the requested one; resume "
+                                      "with the checkpoint's config (omit --config) or start a new run")
+
+    dcfg = cfg["data"]
+    train_sims = load_sims(data, ["train"], dcfg["categories"], dcfg["exclude_categories"])
+    if dcfg["max_train_sims"]:
+        train_sims = train_sims.subset(np.arange(min(int(dcfg["max_train_sims"]), len(train_sims))))
+    val_sims = load_sims(data, ["val"], dcfg["categories"], dcfg["exclude_categories"])
+    identity = dataset_identity(data, train_sims.manifest)
+    if ckpt is not None:
+        old = ckpt.get("dataset", {}).get("manifest_sha256")
+        if old != identity["manifest_sha256"] and not allow_data_change:
+            raise CheckpointError(f"{resume} was trained on a different dataset (manifest sha256 {str(old)[:12]} "
+                                  f"vs {identity['manifest_sha256'][:12]}); pass --allow-data-change to continue")
+    stats = dict(ckpt["normalization"]) if ckpt is not None else compute_stats(train_sims)
+
+    torch.manual_seed(tcfg["seed"])
+    model_cfg = ModelConfig.from_dict(cfg["model"])
+    core = DynamicsModel(model_cfg, stats).to(dev)
+    loss_cfg = LossConfig.from_dict(cfg["loss"])
+    optimizer = torch.optim.Adam(core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, tcfg))
+    prog = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
+    if ckpt is not None:
+        core.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        if ckpt.get("rng"):
+            restore_rng(ckpt["rng"])
+        prog.update(ckpt.get("progress", {}))
+    model: torch.nn.Module = core
+    if d.enabled:
+        model = torch.nn.parallel.DistributedDataParallel(core, device_ids=[dev.index] if dev.type == "cuda" else None)
+
+    ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points)
+    sampler = DistributedSampler(ds, num_replicas=d.world, rank=d.rank, shuffle=True, seed=tcfg["seed"])
+    if tcfg["batch_size"] % d.world:
+        raise ValueError(f"train.batch_size {tcfg['batch_size']} must be divisible by the {d.world} processes")
+    per_rank = tcfg["batch_size"] // d.world
+    val_index, val_starts = fixed_windows(val_sims, tcfg["window"], tcfg["val_windows_per_sim"], tcfg["val_seed"])
+
+    if d.main:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+        print(f"train: {len(train_sims)} train / {len(val_sims)} val simulations, {d.world} process(es) on {dev}, "
+              f"{count_parameters(core)['total']:,} parameters, batch {tcfg['batch_size']}", file=sys.stderr)
+
+    def save(path: Path, with_optimizer: bool = True) -> None:
+        if d.main:
+            save_checkpoint(path, model=core, config=cfg, dataset=identity,
+                            optimizer=optimizer if with_optimizer else None,
+                            scheduler=scheduler if with_optimizer else None, progress=prog,
+                            include_rng=with_optimizer)
+
+    last_save = time.monotonic()
+    stopped = None
+    with _StopFlag() as stop:
+        while prog["epoch"] < tcfg["epochs"] and stopped is None:
+            epoch = prog["epoch"]
+            sampler.set_epoch(epoch)
+            order = np.fromiter(iter(sampler), dtype=np.int64)
+            n_batches = math.ceil(len(order) / per_rank)
+            bar = None
+            if progress and d.main:
+                from tqdm import tqdm
+
+                bar = tqdm(total=n_batches, initial=prog["batch"], desc=f"epoch {epoch + 1}/{tcfg['epochs']}",
+                           dynamic_ncols=True, leave=False, file=sys.stderr)
+            core.train()
+            running: dict[str, float] = {}
+            sums: dict[str, float] = {}
+            seen = 0
+            t_epoch = time.monotonic()
+            for b in range(prog["batch"], n_batches):
+                rng = np.random.default_rng([tcfg["seed"], epoch, b, d.rank])
+                mode_rng = np.random.default_rng([tcfg["seed"], epoch, b])  # same on all ranks
+                feedback = bool(mode_rng.random() < tcfg["rollout_fraction"])
+                batch = _to(ds.batch(order[b * per_rank:(b + 1) * per_rank], rng), dev)
+                loss, parts = batch_loss(model, core, batch, loss_cfg, feedback)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                if tcfg["grad_clip"]:
+                    torch.nn.utils.clip_grad_norm_(core.parameters(), tcfg["grad_clip"])
+                optimizer.step()
+                scheduler.step()
+                prog["step"] += 1
+                prog["batch"] = b + 1
+                for k, v in parts.items():
+                    x = float(v)
+                    running[k] = x if k not in running else 0.95 * running[k] + 0.05 * x
+                    sums[k] = sums.get(k, 0.0) + x
+                seen += 1
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix({k: f"{running[k]:.3f}" for k in ("total", "vel", "pos", "rot", "topple")})
+                over_time = time_limit is not None and time.monotonic() - t_start > time_limit
+                if _all_true(stop.requested or over_time, d, dev):
+                    stopped = "time limit" if over_time else "signal"
+                    break
+                if time.monotonic() - last_save > tcfg["checkpoint_every_s"] and b + 1 < n_batches:
+                    save(out / "checkpoint_last.pt")
+                    last_save = time.monotonic()
+            if bar is not None:
+                bar.close()
+            if stopped is not None:
+                save(out / "checkpoint_last.pt")
+                break
+            prog["epoch"], prog["batch"] = epoch + 1, 0
+            record: dict[str, Any] = {"epoch": epoch + 1, "step": prog["step"], "lr": optimizer.param_groups[0]["lr"],
+                                      "epoch_s": round(time.monotonic() - t_epoch, 2)}
+            record.update({f"train_{k}": v / max(seen, 1) for k, v in sums.items()})
+            improved = False
+            if d.main and ((epoch + 1) % tcfg["val_every"] == 0 or epoch + 1 == tcfg["epochs"]):
+                record.update(validate(core, val_sims, val_index, val_starts, cfg, loss_cfg, dev))
+                metric = record.get(tcfg["select_metric"], record["val_loss"])
+                if prog["best_metric"] is None or metric < prog["best_metric"]:
+                    prog["best_metric"], prog["best_epoch"], improved = float(metric), epoch + 1, True
+                record["best"] = improved
+            if d.main:
+                if improved:
+                    save(out / "checkpoint_best.pt")
+                    save(out / "model_best.pt", with_optimizer=False)
+                save(out / "checkpoint_last.pt")
+                last_save = time.monotonic()
+                with open(out / "train_log.jsonl", "a") as fh:
+                    fh.write(json.dumps(record) + "\n")
+                if not progress:
+                    keys = ("epoch", "train_total", "val_loss", "val_closed_loss", "val_final_pos_cm",
+                            "val_final_rot_deg", "lr", "epoch_s")
+                    print(" ".join(f"{k}={record[k]:.4g}" if isinstance(record.get(k), float) else f"{k}={record.get(k)}"
+                                   for k in keys if k in record), file=sys.stderr)
+            _barrier(d)
+    summary = {"epochs_done": prog["epoch"], "step": prog["step"], "best_metric": prog["best_metric"],
+               "best_epoch": prog["best_epoch"], "stopped": stopped, "out": str(out),
+               "seconds": round(time.monotonic() - t_start, 1)}
+    if d.enabled:
+        import torch.distributed as dist
+
+        _barrier(d)
+        dist.destroy_process_group()
+    return summary
+
+
+# ----------------------------------------------------------------------------------------------------- CLI
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", default=None,
+                        help="config YAML (model/loss/train/data sections), e.g. config/model_default.yaml; "
+                             "optional with --resume (the checkpoint's config is used)")
+    parser.add_argument("--data", required=True, help="dataset directory (physdyn generate)")
+    parser.add_argument("--out", required=True, help="run folder for checkpoints and logs")
+    parser.add_argument("--resume", nargs="?", const="auto", default=None,
+                        help="resume from a checkpoint; without a path: OUT/checkpoint_last.pt if it exists, "
+                             "else start fresh (safe to use in restart loops)")
+    parser.add_argument("--max-epochs", type=int, default=None, help="train until this many epochs (overrides train.epochs)")
+    parser.add_argument("--time-limit", default=None, help="stop cleanly after this long (e.g. 3600, 90m, 2h)")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (overrides train.threads)")
+    parser.add_argument("--seed", type=int, default=None, help="overrides train.seed")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override one config value, e.g. --set train.batch_size=256 (repeatable)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar; one summary line per epoch")
+    parser.add_argument("--allow-data-change", action="store_true",
+                        help="resume even if the dataset differs from the checkpoint's")
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    resume: Optional[str] = None
+    if args.resume == "auto":
+        resume = str(out / "checkpoint_last.pt") if (out / "checkpoint_last.pt").is_file() else None
+    elif args.resume is not None:
+        resume = args.resume
+        if not Path(resume).is_file():
+            raise FileNotFoundError(f"--resume checkpoint {resume} does not exist")
+    elif (out / "checkpoint_last.pt").exists():
+        raise FileExistsError(f"{out} already holds a run (checkpoint_last.pt); pass --resume to continue it "
+                              "or choose another --out")
+    if resume is not None:
+        base = copy.deepcopy(load_checkpoint(resume)["config"])
+        if args.config:
+            requested = load_config(args.config, args.set)
+            for section in ("model", "loss", "data"):
+                if requested[section] != base[section]:
+                    raise CheckpointError(f"--config {args.config}: its {section} section differs from the "
+                                          f"checkpoint's; resume without --config or start a new --out")
+            base["train"] = requested["train"]
+        else:
+            apply_overrides(base, args.set)
+        cfg = resolve_config(base)
+    elif args.config:
+        cfg = load_config(args.config, args.set)
+    else:
+        raise ValueError("--config is required for a new run")
+    if args.max_epochs is not None:
+        cfg["train"]["epochs"] = int(args.max_epochs)
+    if args.threads is not None:
+        cfg["train"]["threads"] = int(args.threads)
+    if args.seed is not None:
+        if resume is not None and args.seed != cfg["train"]["seed"]:
+            raise ValueError("--seed cannot change on resume")
+        cfg["train"]["seed"] = int(args.seed)
+    summary = train(cfg, args.data, out, resume, parse_duration(args.time_limit), args.device,
+                    progress=not args.no_progress and sys.stderr.isatty(), allow_data_change=args.allow_data_change)
+    if int(os.environ.get("RANK", "0")) == 0:
+        print(json.dumps(summary))
+    return 0

@@ -1,0 +1,467 @@
+"""Predictor: the learned dynamics model behind a small numpy API (torch inside; no rclpy, no pybullet).
+
+    from physdyn_ros.predictor import Predictor
+    pred = Predictor.load()                       # the shipped model (physdyn_ros/models/default.pt)
+    code = pred.encode(cloud)                     # (N, 3) points in the table frame, once per object
+    traj = pred.rollout(code, lin_vel, ang_vel, horizon=60)
+    traj.positions[-1], traj.orientations[-1], traj.topple_probability
+    many = pred.rollout_batch(code, lin_vels (B, 3), ang_vels (B, 3))    # e.g. candidate pushes of a planner
+
+Frames: the cloud and all states are in the table frame (z up, REP 103); velocities in the world frame, as
+pybullet reports them. Internally the roll-out runs in the canonical frame C of the cloud (heading, see
+docs/architecture.md "Learning frame"), which makes predictions exactly equivariant to yaw and translation.
+Orientations: unless `orientation` is given, the object's orientation at the start is taken as the identity,
+i.e. returned orientations are the rotation relative to the pose in which the cloud was observed.
+
+`physdyn predict --cloud file.npy|.ply|.xyz --lin-vel x y z --ang-vel x y z --horizon 60` prints the final pose.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from . import geometry as geo
+from .conventions import DT
+
+__all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
+
+
+@dataclass(frozen=True)
+class ShapeCode:
+    """What the model needs to know about an object, computed once per object by Predictor.encode."""
+
+    feature: np.ndarray  # (F,) float32 shape feature
+    heading: float  # rad, yaw of frame C in the table frame
+    centroid: np.ndarray  # (3,) m, centroid of the cloud in the table frame (default roll-out start position)
+    half_extents: np.ndarray  # (3,) m, half sizes of the cloud's bounding box in frame C
+    num_points: int  # points in the encoded cloud
+    model_id: str = ""  # the model that made it (features of different models are not interchangeable)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A predicted trajectory: H+1 states, frame 0 = the given start state, DT apart."""
+
+    dt: float
+    positions: np.ndarray  # (H+1, 3) m, centre of mass, table frame
+    orientations: np.ndarray  # (H+1, 4) x, y, z, w
+    lin_vels: np.ndarray  # (H+1, 3) m/s, world frame
+    ang_vels: np.ndarray  # (H+1, 3) rad/s, world frame
+    topple_prob: np.ndarray  # (H+1,) probability that the object has toppled by each frame (frame 0: 0)
+
+    @property
+    def horizon(self) -> int:
+        return len(self.positions) - 1
+
+    @property
+    def topple_probability(self) -> float:
+        """Probability that the object topples at some point of the roll-out (max over frames)."""
+        return float(self.topple_prob.max())
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.arange(len(self.positions)) * self.dt
+
+
+@dataclass(frozen=True)
+class TrajectoryBatch:
+    """B trajectories, arrays with a leading batch dimension; `batch[i]` is a Trajectory."""
+
+    dt: float
+    positions: np.ndarray  # (B, H+1, 3)
+    orientations: np.ndarray  # (B, H+1, 4)
+    lin_vels: np.ndarray  # (B, H+1, 3)
+    ang_vels: np.ndarray  # (B, H+1, 3)
+    topple_prob: np.ndarray  # (B, H+1)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, i: int) -> Trajectory:
+        return Trajectory(self.dt, self.positions[i], self.orientations[i], self.lin_vels[i], self.ang_vels[i],
+                          self.topple_prob[i])
+
+    @property
+    def topple_probability(self) -> np.ndarray:
+        """(B,) max topple probability per trajectory."""
+        return self.topple_prob.max(axis=1)
+
+
+@dataclass(frozen=True)
+class Observed:
+    """K observed states following the start state (frames 1..K), fed to the model before it runs free
+    ("steps in" = K + 1 in the paper's friction experiment: lets the model infer friction from motion)."""
+
+    positions: np.ndarray  # (K, 3)
+    orientations: np.ndarray  # (K, 4)
+    lin_vels: np.ndarray  # (K, 3)
+    ang_vels: np.ndarray  # (K, 3)
+
+
+# ------------------------------------------------------------------------------------------------- input checks
+def _vector(value: Any, size: int, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from None
+    if arr.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf: {arr.tolist()}")
+    return arr
+
+
+def _vectors(value: Any, size: int, name: str, batch: Optional[int] = None) -> np.ndarray:
+    """(size,) or (B, size) finite array -> (B or 1, size)."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of {size}-vectors") from None
+    if arr.ndim == 1:
+        arr = arr[None]
+    if arr.ndim != 2 or arr.shape[1] != size or arr.shape[0] == 0:
+        raise ValueError(f"{name} must have shape ({size},) or (B, {size}), got {np.shape(value)}")
+    if batch is not None and arr.shape[0] not in (1, batch):
+        raise ValueError(f"{name} has {arr.shape[0]} rows, expected 1 or {batch}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return arr
+
+
+def _quaternions(value: Any, name: str, batch: Optional[int] = None) -> np.ndarray:
+    q = _vectors(value, 4, name, batch)
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise ValueError(f"{name} must be non-zero quaternions (x, y, z, w)")
+    return q / norm
+
+
+def check_cloud(cloud: Any) -> np.ndarray:
+    """An (N, 3) finite, non-empty float64 array, or ValueError naming the problem."""
+    try:
+        arr = np.asarray(cloud, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("cloud must be an (N, 3) array of numbers") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"cloud must have shape (N, 3), got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise ValueError("cloud is empty (0 points)")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"cloud contains NaN or inf ({int(np.sum(~np.isfinite(arr)))} values)")
+    return arr
+
+
+# ---------------------------------------------------------------------------------------------------- predictor
+class Predictor:
+    """A loaded model ready to predict; create with Predictor.load(). Not thread-safe: one per thread."""
+
+    def __init__(self, model: Any, checkpoint: Mapping[str, Any], device: str = "cpu", path: str = "") -> None:
+        self._model = model
+        self._device = device
+        self.path = path
+        self.model_id: str = str(checkpoint["model_id"])
+        dataset = checkpoint.get("dataset") or {}
+        manifest = dataset.get("manifest") or {}
+        self.dt: float = float(manifest.get("dt", DT))
+        self.num_points: int = int(model.cfg.num_points)
+        self.feature_dim: int = int(model.feature_dim)
+        self.max_horizon: int = int(model.cfg.max_horizon)
+        # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
+        self._subsets: dict[int, np.ndarray] = {}
+
+    @classmethod
+    def load(cls, path: Union[str, os.PathLike, None] = None, device: str = "cpu",
+             threads: Optional[int] = None) -> "Predictor":
+        """Load a checkpoint (None: the shipped default model) and warm it up.
+
+        FileNotFoundError if the file does not exist; learn.checkpoint.CheckpointError (a RuntimeError) if it
+        is corrupt, not a physdyn checkpoint, or incompatible with this code. `threads` sets torch's CPU
+        threads (process-wide); for batch-1 latency 1 thread is fastest.
+        """
+        import torch
+
+        from .learn.checkpoint import load_model
+        from .resources import DEFAULT_MODEL
+
+        if path is None:
+            path = DEFAULT_MODEL
+            if not Path(path).is_file():
+                raise FileNotFoundError(f"no shipped model at {path}; train one with 'physdyn train --config "
+                                        "config/model_default.yaml ...' and pass its model_best.pt")
+        if threads is not None:
+            torch.set_num_threads(int(threads))
+        model, ckpt = load_model(path, map_location=device)
+        model.to(device).eval()
+        pred = cls(model, ckpt, device, str(path))
+        pred._warm_up()
+        return pred
+
+    def _warm_up(self) -> None:
+        """Run the compiled roll-out a few times: TorchScript optimises a function on its first calls."""
+        rng = np.random.default_rng(0)
+        cloud = rng.uniform(-0.05, 0.05, size=(self.num_points, 3)) * (1.0, 0.6, 1.5)
+        code = self.encode(cloud)
+        for _ in range(3):
+            self.rollout(code, (0.5, 0.1, 0.0), (0.0, 0.0, 1.0), horizon=min(60, self.max_horizon))
+
+    # ----------------------------------------------------------------------------------------------- encode
+    def _subset(self, n: int) -> np.ndarray:
+        if n not in self._subsets:
+            gen = np.random.default_rng(0)
+            if n >= self.num_points:
+                idx = np.sort(gen.permutation(n)[:self.num_points])
+            else:  # repeat points: max pooling is unchanged by duplicates
+                idx = np.concatenate([np.arange(n), gen.integers(0, n, self.num_points - n)])
+            self._subsets[n] = idx
+        return self._subsets[n]
+
+    def encode(self, cloud: Any) -> ShapeCode:
+        """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred)."""
+        import torch
+
+        from .learn.frames import canonicalize_cloud
+
+        pts = check_cloud(cloud)
+        canon = canonicalize_cloud(pts)
+        local = canon.points
+        half = 0.5 * (local.max(axis=0) - local.min(axis=0))
+        sub = torch.from_numpy(local[self._subset(len(pts))].astype(np.float32))[None].to(self._device)
+        with torch.inference_mode():
+            feature = self._model.encode(sub)[0].float().cpu().numpy()
+        return ShapeCode(feature=feature, heading=float(canon.heading), centroid=canon.centroid.copy(),
+                         half_extents=half, num_points=int(len(pts)), model_id=self.model_id)
+
+    def _check_code(self, code: ShapeCode) -> None:
+        feature = np.asarray(code.feature)
+        if feature.shape != (self.feature_dim,) or not np.all(np.isfinite(feature)):
+            raise ValueError(f"shape feature must be {self.feature_dim} finite numbers, got shape {feature.shape}")
+        if code.model_id and code.model_id != self.model_id:
+            raise ValueError(f"shape code was encoded by model {code.model_id}, this predictor is {self.model_id}")
+        if not math.isfinite(float(code.heading)):
+            raise ValueError("shape code heading is not finite")
+
+    def _code(self, shape: Any) -> ShapeCode:
+        if isinstance(shape, ShapeCode):
+            self._check_code(shape)
+            return shape
+        return self.encode(shape)
+
+    def _check_horizon(self, horizon: Any) -> int:
+        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
+            raise ValueError(f"horizon must be an integer number of steps, got {horizon!r}")
+        if not 1 <= int(horizon) <= self.max_horizon:
+            raise ValueError(f"horizon must be in 1..{self.max_horizon} steps, got {horizon}")
+        return int(horizon)
+
+    # ---------------------------------------------------------------------------------------------- roll-out
+    def rollout(self, shape: Union[ShapeCode, np.ndarray], lin_vel: Any, ang_vel: Any, horizon: int = 60,
+                position: Any = None, orientation: Any = None,
+                observed: Union[Observed, Mapping[str, Any], None] = None) -> Trajectory:
+        """Predict the motion after the object has velocities lin_vel / ang_vel (world frame) at frame 0.
+
+        shape: a ShapeCode or a cloud (N, 3). position: start COM (default: the cloud centroid).
+        orientation: start orientation (default identity). observed: optional states of frames 1..K.
+        """
+        code = self._code(shape)
+        horizon = self._check_horizon(horizon)
+        v0 = _vector(lin_vel, 3, "lin_vel")
+        w0 = _vector(ang_vel, 3, "ang_vel")
+        p0 = code.centroid if position is None else _vector(position, 3, "position")
+        q0 = np.array([0.0, 0.0, 0.0, 1.0]) if orientation is None else _quaternions(orientation, "orientation")[0]
+        obs = self._check_observed(observed, horizon)
+        batch = self._run(code.feature[None], np.array([code.heading]), v0[None], w0[None], p0[None], q0[None],
+                          horizon, obs)
+        return batch[0]
+
+    def rollout_batch(self, shapes: Union[ShapeCode, np.ndarray, Sequence[Union[ShapeCode, np.ndarray]]],
+                      lin_vels: Any, ang_vels: Any, horizon: int = 60, positions: Any = None,
+                      orientations: Any = None) -> TrajectoryBatch:
+        """Batched roll-outs: one shape with many velocities, or many shapes (a sequence of codes or clouds).
+
+        lin_vels / ang_vels: (B, 3) or (3,) (broadcast); positions (B, 3) or (3,); orientations (B, 4) or (4,).
+        """
+        horizon = self._check_horizon(horizon)
+        if isinstance(shapes, ShapeCode) or (isinstance(shapes, np.ndarray) and shapes.ndim == 2):
+            codes = [self._code(shapes)]
+        elif isinstance(shapes, (list, tuple)) or (isinstance(shapes, np.ndarray) and shapes.ndim == 3):
+            codes = [self._code(s) for s in shapes]
+            if not codes:
+                raise ValueError("shapes is empty")
+        else:
+            raise ValueError("shapes must be a ShapeCode, a cloud (N, 3), or a sequence of them")
+        v = _vectors(lin_vels, 3, "lin_vels")
+        w = _vectors(ang_vels, 3, "ang_vels")
+        sizes = {len(codes), len(v), len(w)} - {1}
+        if len(sizes) > 1:
+            raise ValueError(f"batch sizes disagree: {len(codes)} shapes, {len(v)} lin_vels, {len(w)} ang_vels")
+        b = sizes.pop() if sizes else 1
+        feats = np.stack([c.feature for c in codes])
+        headings = np.array([c.heading for c in codes])
+        centroids = np.stack([c.centroid for c in codes])
+        p = np.broadcast_to(centroids, (b, 3)) if positions is None else _vectors(positions, 3, "positions", b)
+        q = np.array([[0.0, 0.0, 0.0, 1.0]]) if orientations is None else _quaternions(orientations, "orientations", b)
+        bc = lambda a: np.broadcast_to(a, (b,) + a.shape[1:])  # noqa: E731
+        return self._run(bc(feats), np.broadcast_to(headings, (b,)), bc(v), bc(w), bc(p), bc(q), horizon, None)
+
+    def _check_observed(self, observed: Any, horizon: int) -> Optional[dict[str, np.ndarray]]:
+        if observed is None:
+            return None
+        get = (lambda k: getattr(observed, k)) if isinstance(observed, Observed) else (lambda k: observed[k])
+        try:
+            arrays = {k: np.asarray(get(k), dtype=np.float64) for k in ("positions", "orientations", "lin_vels", "ang_vels")}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"observed must hold positions, orientations, lin_vels, ang_vels: {exc}") from None
+        k = len(arrays["positions"])
+        for name, size in (("positions", 3), ("orientations", 4), ("lin_vels", 3), ("ang_vels", 3)):
+            a = arrays[name]
+            if a.shape != (k, size):
+                raise ValueError(f"observed {name} must have shape ({k}, {size}), got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"observed {name} contains NaN or inf")
+        if k >= horizon:
+            raise ValueError(f"{k} observed states leave nothing to predict within horizon {horizon}")
+        if k and np.any(np.linalg.norm(arrays["orientations"], axis=1) < 1e-9):
+            raise ValueError("observed orientations must be non-zero quaternions")
+        return arrays if k else None
+
+    def _run(self, feats: np.ndarray, headings: np.ndarray, v0: np.ndarray, w0: np.ndarray, p0: np.ndarray,
+             q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]]) -> TrajectoryBatch:
+        """Roll out in frame C with torch, then back to the table frame (all vectorised over the batch)."""
+        import torch
+
+        from .learn.frames import c_to_world, integrate_in_world, world_to_c
+
+        h = headings[:, None]
+        obs_v = obs_w = None
+        k = 0
+        if obs is not None:
+            k = len(obs["positions"])
+            obs_v = torch.from_numpy(world_to_c(obs["lin_vels"][None], h).astype(np.float32)).to(self._device)
+            obs_w = torch.from_numpy(world_to_c(obs["ang_vels"][None], h).astype(np.float32)).to(self._device)
+        with torch.inference_mode():
+            out = self._model.rollout(torch.from_numpy(np.array(feats, dtype=np.float32)).to(self._device),
+                                      torch.from_numpy(world_to_c(v0, headings).astype(np.float32)).to(self._device),
+                                      torch.from_numpy(world_to_c(w0, headings).astype(np.float32)).to(self._device),
+                                      horizon, obs_v, obs_w)
+            # one transfer for everything
+            flat = torch.cat([out["d_pos"], out["d_rot"], out["vel"][:, 1:], out["angvel"][:, 1:],
+                              out["topple_logit"][..., None]], -1).double().cpu().numpy()
+        d_pos, d_rot = flat[..., 0:3], flat[..., 3:6]
+        if k:  # observed frames keep their observed poses
+            pos_seq = np.concatenate([p0[:1], obs["positions"]])
+            q_seq = np.concatenate([q0[:1], obs["orientations"] / np.linalg.norm(obs["orientations"], axis=1, keepdims=True)])
+            dq = geo.quat_multiply(q_seq[1:], geo.quat_conjugate(q_seq[:-1]))
+            d_pos[:, :k] = world_to_c(np.diff(pos_seq, axis=0)[None], h)
+            d_rot[:, :k] = world_to_c(geo.quat_to_axis_angle(dq)[None], h)
+        positions, orientations = integrate_in_world(headings, p0, q0, d_pos, d_rot)
+        lin = np.concatenate([v0[:, None], c_to_world(flat[..., 6:9], h)], axis=1)
+        ang = np.concatenate([w0[:, None], c_to_world(flat[..., 9:12], h)], axis=1)
+        prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
+        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, prob)
+
+
+# ------------------------------------------------------------------------------------------------------- clouds
+def load_cloud(path: Union[str, os.PathLike]) -> np.ndarray:
+    """(N, 3) points from .npy, .ply (ascii or binary vertex x y z) or .xyz/.txt/.csv (first 3 columns)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"cloud file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        arr = np.load(path, allow_pickle=False)
+    elif suffix == ".ply":
+        arr = _read_ply(path)
+    elif suffix in (".xyz", ".txt", ".csv", ".pts"):
+        arr = np.loadtxt(path, delimiter="," if suffix == ".csv" else None, ndmin=2)[:, :3]
+    else:
+        raise ValueError(f"unsupported cloud file type {suffix!r} (use .npy, .ply, .xyz, .txt, .csv, .pts)")
+    return check_cloud(np.asarray(arr, dtype=np.float64).reshape(-1, 3) if np.ndim(arr) == 1 else arr)
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _read_ply(path: Path) -> np.ndarray:
+    """The x, y, z of a PLY file's vertex element (ascii, binary_little_endian, binary_big_endian)."""
+    data = path.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise ValueError(f"{path} is not a PLY file")
+    header = data[:end].decode("ascii", "replace").splitlines()
+    body_start = data.index(b"\n", end) + 1
+    fmt, count, props, in_vertex, before = "", 0, [], False, 0
+    for line in header:
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "format":
+            fmt = parts[1]
+        elif parts[0] == "element":
+            in_vertex = parts[1] == "vertex"
+            if in_vertex:
+                count = int(parts[2])
+            elif not count:
+                before += 1  # an element before the vertices: unsupported below
+        elif parts[0] == "property" and in_vertex:
+            if parts[1] == "list":
+                raise ValueError(f"{path}: list properties in the vertex element are not supported")
+            props.append((parts[2], _PLY_TYPES.get(parts[1])))
+    names = [p[0] for p in props]
+    if before or not all(c in names for c in "xyz") or any(t is None for _, t in props):
+        raise ValueError(f"{path}: need a first 'vertex' element with x, y, z scalar properties")
+    if fmt == "ascii":
+        rows = data[body_start:].decode("ascii").split("\n")[:count]
+        table = np.array([r.split()[:len(props)] for r in rows], dtype=np.float64)
+        return table[:, [names.index(c) for c in "xyz"]]
+    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt)
+    if order is None:
+        raise ValueError(f"{path}: unknown PLY format {fmt!r}")
+    dtype = np.dtype([(n, order + t) for n, t in props])
+    verts = np.frombuffer(data, dtype=dtype, count=count, offset=body_start)
+    return np.stack([verts[c].astype(np.float64) for c in "xyz"], axis=1)
+
+
+# ---------------------------------------------------------------------------------------------------------- CLI
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cloud", required=True, help="object points in the table frame: .npy, .ply, .xyz/.txt/.csv")
+    parser.add_argument("--lin-vel", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="m/s, world")
+    parser.add_argument("--ang-vel", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="rad/s, world")
+    parser.add_argument("--horizon", type=int, default=60, help="steps of 1/15 s (default 60 = 4 s)")
+    parser.add_argument("--position", nargs=3, type=float, default=None, metavar=("X", "Y", "Z"),
+                        help="start COM position (default: the cloud centroid)")
+    parser.add_argument("--orientation", nargs=4, type=float, default=None, metavar=("X", "Y", "Z", "W"),
+                        help="start orientation quaternion (default: identity)")
+    parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--json", action="store_true", help="print the whole trajectory as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    pred = Predictor.load(args.model, device=args.device, threads=1)
+    cloud = load_cloud(args.cloud)
+    traj = pred.rollout(cloud, args.lin_vel, args.ang_vel, args.horizon, args.position, args.orientation)
+    if args.json:
+        print(json.dumps({"model_id": pred.model_id, "dt": traj.dt, "positions": traj.positions.tolist(),
+                          "orientations": traj.orientations.tolist(), "lin_vels": traj.lin_vels.tolist(),
+                          "ang_vels": traj.ang_vels.tolist(), "topple_prob": traj.topple_prob.tolist()}))
+        return 0
+    p, q = traj.positions[-1], traj.orientations[-1]
+    yaw = math.degrees(math.atan2(2 * (q[3] * q[2] + q[0] * q[1]), 1 - 2 * (q[1] ** 2 + q[2] ** 2)))
+    tilt = math.degrees(float(geo.up_tilt_angle(q)))
+    moved = np.linalg.norm(p - traj.positions[0])
+    print(f"model {pred.model_id}; {len(cloud)} points; {traj.horizon} steps = {traj.horizon * traj.dt:.2f} s")
+    print(f"final position    [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m  (moved {moved:.4f} m)")
+    print(f"final orientation [{q[0]:.4f}, {q[1]:.4f}, {q[2]:.4f}, {q[3]:.4f}] (x y z w); yaw {yaw:.1f} deg, "
+          f"tilt {tilt:.1f} deg")
+    print(f"final velocity    [{traj.lin_vels[-1][0]:.4f}, {traj.lin_vels[-1][1]:.4f}, {traj.lin_vels[-1][2]:.4f}] m/s")
+    print(f"topple probability {traj.topple_probability:.3f}")
+    return 0
