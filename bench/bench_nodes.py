@@ -1,0 +1,266 @@
+#!/usr/bin/env python3
+"""Latency and throughput of the perception and predictor nodes, as separate processes over DDS (loopback).
+
+    .venv/bin/python bench/bench_nodes.py [--model PATH] [--samples 100] [--clients 8] [--domain 42]
+
+The bench plays the world: it starts perception_node and predictor_node with config/suite.yaml (as `physdyn
+up --nodes perception,predictor` does) and publishes the clouds, object states and twists itself.
+* twist -> trajectory: wall time from publishing an initial_twist (with the object_state of the same stamp
+  already published) to receiving the predicted_trajectory stamped with it (60-step horizon).
+* service round trip: predict_trajectory by object_id, 60 steps, p50 / p99, one client, sequential.
+* perception: a 100k-point cloud published on `cloud` -> its ShapeFeature received (DDS transfer of 1.6 MB +
+  preprocessing + encoding), p50 / p99; and preprocessing + encoding alone, in this process.
+* concurrency: --clients clients, each sending requests back to back; requests per second and the number
+  of requests not answered (must be 0).
+Without a shipped model the default architecture (config/model_default.yaml) is timed with random weights.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+HORIZON = 60
+T_BASE = 2_000 * 10**9  # stamps used by the bench, ns
+
+
+def random_weights_checkpoint(path: Path) -> None:
+    import torch
+
+    from physdyn_ros.learn.checkpoint import save_checkpoint
+    from physdyn_ros.learn.model import STAT_KEYS, DynamicsModel, ModelConfig
+    from physdyn_ros.learn.train import load_config
+
+    cfg = load_config(ROOT / "config" / "model_default.yaml")
+    torch.manual_seed(0)
+    stats = dict(zip(STAT_KEYS, (0.5, 8.0, 0.2, 4.0, 0.03, 0.5, 0.15)))
+    save_checkpoint(path, model=DynamicsModel(ModelConfig.from_dict(cfg["model"]), stats), config=cfg,
+                    dataset={}, include_rng=False)
+
+
+def box_cloud(n: int, rng: np.random.Generator) -> np.ndarray:
+    half = np.array([0.05, 0.03, 0.04])
+    p = rng.uniform(-1, 1, (n, 3)) * half
+    axis = rng.integers(0, 3, n)
+    p[np.arange(n), axis] = np.sign(rng.uniform(-1, 1, n)) * half[axis]
+    return (p + (0.2, 0.1, 0.04) + rng.normal(0, 0.001, (n, 3))).astype(np.float32)
+
+
+def pct(samples: list[float]) -> str:
+    a = np.asarray(samples) * 1e3
+    return f"p50 {np.percentile(a, 50):7.2f} ms   p99 {np.percentile(a, 99):7.2f} ms   (n={len(a)})"
+
+
+class Bench:
+    def __init__(self) -> None:
+        import rclpy
+        from geometry_msgs.msg import TwistStamped
+        from rclpy.executors import MultiThreadedExecutor
+        from sensor_msgs.msg import PointCloud2
+
+        from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
+        from physdyn_ros.nodes.perception_node import FEATURE_QOS
+        from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS
+        from physdyn_ros.srv import PredictTrajectory
+
+        self.node = rclpy.create_node("bench")
+        self.cloud = self.node.create_publisher(PointCloud2, "cloud", 2)
+        self.state = self.node.create_publisher(ObjectState, "object_state", STATE_QOS)
+        self.twist = self.node.create_publisher(TwistStamped, "initial_twist", 10)
+        self.events: dict[tuple[str, int], float] = {}
+        self.cond = threading.Condition()
+        self.node.create_subscription(ShapeFeature, "shape_feature", self._mark("feature"), FEATURE_QOS)
+        self.node.create_subscription(PredictedTrajectory, "predicted_trajectory", self._mark("traj"), LATCHED)
+        self.clients = [self.node.create_client(PredictTrajectory, "predict_trajectory") for _ in range(16)]
+        self.executor = MultiThreadedExecutor(num_threads=4)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _mark(self, kind: str):
+        from physdyn_ros.ros.convert import time_to_ns
+
+        def cb(msg) -> None:
+            with self.cond:
+                self.events[(kind, time_to_ns(msg.header.stamp))] = time.perf_counter()
+                self.cond.notify_all()
+        return cb
+
+    def wait_event(self, kind: str, stamp: int, timeout: float = 30.0) -> float:
+        with self.cond:
+            if not self.cond.wait_for(lambda: (kind, stamp) in self.events, timeout):
+                raise RuntimeError(f"no {kind} stamped {stamp} within {timeout} s")
+            return self.events[(kind, stamp)]
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(5.0)
+        self.executor._work_tracker.wait(5.0)
+        self.executor.shutdown(timeout_sec=2.0)
+        self.node.destroy_node()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model, else random "
+                        "weights of config/model_default.yaml)")
+    parser.add_argument("--samples", type=int, default=100, help="samples per latency figure")
+    parser.add_argument("--clients", type=int, default=8, help="concurrent service clients")
+    parser.add_argument("--requests", type=int, default=25, help="requests per concurrent client")
+    parser.add_argument("--cloud-points", type=int, default=100_000)
+    parser.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: a random private one)")
+    args = parser.parse_args()
+
+    os.environ["ROS_DOMAIN_ID"] = str(args.domain if args.domain is not None else np.random.randint(101, 200))
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    import rclpy
+    from geometry_msgs.msg import TwistStamped
+    from std_msgs.msg import Header
+
+    from physdyn_ros.launcher import Suite
+    from physdyn_ros.nodes.perception_node import Preprocess, preprocess
+    from physdyn_ros.predictor import Predictor
+    from physdyn_ros.resources import DEFAULT_MODEL
+    from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
+    from physdyn_ros.ros.convert import ns_to_time, vector3
+    from physdyn_ros.ros.trajectory import object_state
+    from physdyn_ros.srv import PredictTrajectory
+
+    tmp = tempfile.TemporaryDirectory(prefix="bench_nodes_")
+    if args.model:
+        model, note = Path(args.model).resolve(), "given"
+    elif DEFAULT_MODEL.is_file():
+        model, note = DEFAULT_MODEL, "shipped"
+    else:
+        model, note = Path(tmp.name) / "random_default.pt", "random weights, default architecture"
+        random_weights_checkpoint(model)
+    print(f"model: {model} ({note}); ROS_DOMAIN_ID {os.environ['ROS_DOMAIN_ID']}; "
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
+
+    rng = np.random.default_rng(0)
+    cloud = box_cloud(args.cloud_points, rng)
+    # in-process reference: what the perception callback does, without DDS
+    pred = Predictor.load(model, threads=1)
+    msg = xyz_to_cloud(cloud, "world")
+    local = []
+    for _ in range(max(5, args.samples // 10)):
+        t = time.perf_counter()
+        pts = cloud_to_xyz(msg, max_points=100_000, rng=rng)
+        pred.encode(preprocess(pts, Preprocess()))
+        local.append(time.perf_counter() - t)
+
+    overrides = {"perception": [f"model_path:={model}"],
+                 "predictor": [f"model_path:={model}", f"horizon:={HORIZON}", "max_feature_age:=0.0"]}
+    rclpy.init()
+    suite = Suite(nodes=["perception", "predictor"], overrides=overrides, log_dir=Path(tmp.name) / "logs")
+    bench = None
+    try:
+        t = time.monotonic()
+        suite.start().wait_ready(240)
+        print(f"nodes ready in {time.monotonic() - t:.1f} s\n")
+        bench = Bench()
+        time.sleep(1.0)  # discovery
+
+        # perception: cloud -> feature
+        percep = []
+        for i in range(max(5, args.samples // 5)):
+            stamp = T_BASE + i * 10**7
+            t = time.perf_counter()
+            bench.cloud.publish(xyz_to_cloud(cloud, "world", ns_to_time(stamp)))
+            try:
+                percep.append(bench.wait_event("feature", stamp, 10.0) - t)
+            except RuntimeError:
+                pass  # best effort subscription: a dropped cloud is not a latency sample
+        print(f"perception, {args.cloud_points // 1000}k-point cloud -> ShapeFeature over DDS: {pct(percep)}"
+              f"   dropped {max(5, args.samples // 5) - len(percep)}")
+        print(f"perception, preprocessing + encoding in process:     {pct(local)}")
+
+        # twist -> trajectory (the state of the push instant published first, as the sim does)
+        lat = []
+        for i in range(args.samples):
+            stamp = T_BASE + 10**10 + i * 10**8
+            s = object_state("world", ns_to_time(stamp), "object", (0.2, 0.1, 0.04), (0, 0, 0, 1), (0, 0, 0), (0, 0, 0))
+            bench.state.publish(s)
+            tw = TwistStamped(header=Header(frame_id="world", stamp=ns_to_time(stamp)))
+            tw.twist.linear, tw.twist.angular = vector3((0.6, 0.1, 0.0)), vector3((0.0, 0.0, 2.0))
+            time.sleep(0.005)
+            t = time.perf_counter()
+            bench.twist.publish(tw)
+            lat.append(bench.wait_event("traj", stamp) - t)
+        print(f"initial_twist -> predicted_trajectory ({HORIZON} steps):  {pct(lat)}")
+
+        def request() -> PredictTrajectory.Request:
+            req = PredictTrajectory.Request(object_id="object", horizon=HORIZON)
+            req.header.frame_id = "world"
+            req.initial_pose.position.x, req.initial_pose.position.z = 0.2, 0.04
+            req.initial_twist.linear, req.initial_twist.angular = vector3((0.6, 0.1, 0)), vector3((0, 0, 2.0))
+            return req
+
+        def call(client, req, timeout=30.0):
+            fut = client.call_async(req)
+            deadline = time.monotonic() + timeout
+            while not fut.done():
+                if time.monotonic() > deadline:
+                    return None
+                time.sleep(0.0002)
+            return fut.result()
+
+        c0 = bench.clients[0]
+        assert c0.wait_for_service(timeout_sec=30)
+        rtt = []
+        for _ in range(args.samples):
+            t = time.perf_counter()
+            res = call(c0, request())
+            rtt.append(time.perf_counter() - t)
+            assert res is not None and res.success, res and res.message
+        print(f"predict_trajectory round trip ({HORIZON} steps):        {pct(rtt)}")
+
+        # concurrency: N clients, each sending requests back to back
+        n = min(args.clients, len(bench.clients))
+        answered, failed = [0] * n, [0] * n
+
+        def worker(k: int) -> None:
+            for _ in range(args.requests):
+                res = call(bench.clients[k], request())
+                if res is not None and res.success:
+                    answered[k] += 1
+                else:
+                    failed[k] += 1
+
+        for c in bench.clients[:n]:
+            assert c.wait_for_service(timeout_sec=30)
+        threads = [threading.Thread(target=worker, args=(k,)) for k in range(n)]
+        t = time.perf_counter()
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        wall = time.perf_counter() - t
+        total = n * args.requests
+        print(f"{n} concurrent clients x {args.requests} requests: {sum(answered) / wall:6.1f} requests/s, "
+              f"{sum(answered)}/{total} answered, {sum(failed)} failed or lost")
+        return 0 if sum(failed) == 0 else 1
+    finally:
+        if bench is not None:
+            bench.close()
+        suite.stop()
+        rclpy.try_shutdown()
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

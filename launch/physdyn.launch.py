@@ -1,0 +1,33 @@
+"""Start the physdyn_ros node suite (sim, perception, predictor) with one params file.
+
+    ros2 launch physdyn_ros physdyn.launch.py [params_file:=/path/to/suite.yaml] [use_sim:=false]
+
+The same nodes, names and params file as `physdyn up` (physdyn_ros/launcher.py); test_ros_launch.py checks that
+the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `initial_twist` and
+`object_state` from your own sensors / tracker instead.
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+
+def generate_launch_description():
+    default_params = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'suite.yaml')
+    params_file = LaunchConfiguration('params_file')
+    return LaunchDescription([
+        DeclareLaunchArgument('params_file', default_value=default_params,
+                              description='node parameters, one section per node (/sim, /perception, /predictor)'),
+        DeclareLaunchArgument('use_sim', default_value='true',
+                              description='start the simulated table (sim node)'),
+        Node(package='physdyn_ros', executable='sim_node', name='sim', parameters=[params_file],
+             output='screen', condition=IfCondition(LaunchConfiguration('use_sim'))),
+        Node(package='physdyn_ros', executable='perception_node', name='perception', parameters=[params_file],
+             output='screen'),
+        Node(package='physdyn_ros', executable='predictor_node', name='predictor', parameters=[params_file],
+             output='screen'),
+    ])

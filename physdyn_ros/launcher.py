@@ -1,0 +1,237 @@
+"""``physdyn up``: start the node suite (sim, perception, predictor) as subprocesses with one params file.
+
+The same nodes, names and params file as launch/physdyn.launch.py, for machines without `ros2 launch`:
+    python -m physdyn_ros.nodes.<executable> --ros-args --params-file <config> [-p name:=value ...]
+Each node's output is forwarded line by line with its name in front (or written to a log folder). Ctrl-C or
+SIGTERM is forwarded to every node as SIGINT (rclpy shuts down cleanly on it). If a node exits during start-up
+or later, the others are stopped and the command exits non-zero, naming the node and its exit code.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Sequence
+
+#: (node name, executable) in start order; the executable is the module physdyn_ros.nodes.<executable>, the
+#: installed script lib/physdyn_ros/<executable> (ros2 run / launch) and the launch file's `executable`.
+NODES: tuple[tuple[str, str], ...] = (("sim", "sim_node"), ("perception", "perception_node"),
+                                      ("predictor", "predictor_node"))
+CONFIG_NAME = "suite.yaml"
+#: A node logs "<name>]: ready: ..." once it serves (model loaded and warmed up, object spawned).
+READY_MARK = "]: ready:"
+
+
+def default_config() -> Path:
+    from .resources import config_path
+
+    return config_path(CONFIG_NAME)
+
+
+def node_command(executable: str, params_file: Path, overrides: Sequence[str] = (),
+                 log_level: str | None = None) -> list[str]:
+    cmd = [sys.executable, "-m", f"physdyn_ros.nodes.{executable}", "--ros-args", "--params-file", str(params_file)]
+    for o in overrides:
+        cmd += ["-p", o]
+    if log_level:
+        cmd += ["--log-level", log_level]
+    return cmd
+
+
+class NodeProcess:
+    """One node subprocess whose output is forwarded by a thread that also watches for its ready line."""
+
+    def __init__(self, name: str, cmd: list[str], out: IO[str], env: dict[str, str]) -> None:
+        self.name, self.cmd, self.out = name, cmd, out
+        self.ready = threading.Event()
+        # Own session: a terminal's Ctrl-C reaches only the launcher, which forwards it exactly once.
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                     env=env, start_new_session=True)
+        self.thread = threading.Thread(target=self._pump, name=f"out-{name}", daemon=True)
+        self.thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            if READY_MARK in line:
+                self.ready.set()
+            try:
+                self.out.write(f"[{self.name}] {line}" if self.out in (sys.stdout, sys.stderr) else line)
+                self.out.flush()
+            except ValueError:  # output closed while stopping
+                pass
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+    def interrupt(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+
+
+class Suite:
+    """The running nodes. Use as a context manager, or call start() / wait_ready() / stop()."""
+
+    def __init__(self, config: Path | None = None, overrides: dict[str, Sequence[str]] | None = None,
+                 nodes: Sequence[str] | None = None, log_dir: Path | None = None, log_level: str | None = None,
+                 env: dict[str, str] | None = None) -> None:
+        self.config = Path(config) if config else default_config()
+        if not self.config.is_file():
+            raise FileNotFoundError(f"params file {self.config} does not exist")
+        self.overrides = overrides or {}
+        wanted = list(nodes) if nodes else [n for n, _ in NODES]
+        unknown = sorted(set(wanted) - {n for n, _ in NODES})
+        if unknown:
+            raise ValueError(f"unknown node(s) {unknown}; the suite has {[n for n, _ in NODES]}")
+        self.nodes = [(n, e) for n, e in NODES if n in wanted]
+        self.log_dir, self.log_level = log_dir, log_level
+        self.env = dict(os.environ if env is None else env)
+        self.env.setdefault("PYTHONUNBUFFERED", "1")
+        self.env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
+        self.env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+        self.procs: list[NodeProcess] = []
+        self._files: list[IO[str]] = []
+
+    def start(self) -> "Suite":
+        for name, exe in self.nodes:
+            if self.log_dir is not None:
+                self.log_dir.mkdir(parents=True, exist_ok=True)
+                out: IO[str] = open(self.log_dir / f"{name}.log", "w")
+                self._files.append(out)
+            else:
+                out = sys.stdout
+            cmd = node_command(exe, self.config, self.overrides.get(name, ()), self.log_level)
+            self.procs.append(NodeProcess(name, cmd, out, self.env))
+        return self
+
+    def dead(self) -> NodeProcess | None:
+        return next((p for p in self.procs if p.poll() is not None), None)
+
+    def wait_ready(self, timeout: float = 180.0) -> None:
+        """Block until every node logged its ready line. RuntimeError if one exits first or time runs out."""
+        deadline = time.monotonic() + timeout
+        while not all(p.ready.is_set() for p in self.procs):
+            d = self.dead()
+            if d is not None:
+                d.thread.join(2.0)  # let its last lines (the reason) through
+                raise RuntimeError(f"node '{d.name}' exited with code {d.poll()} during start-up"
+                                   + (f" (log: {self.log_dir / (d.name + '.log')})" if self.log_dir else ""))
+            if time.monotonic() > deadline:
+                waiting = [p.name for p in self.procs if not p.ready.is_set()]
+                raise RuntimeError(f"node(s) {waiting} not ready after {timeout:.0f} s")
+            time.sleep(0.05)
+
+    def stop(self, timeout: float = 10.0) -> dict[str, int | None]:
+        """SIGINT every node, then SIGTERM / SIGKILL the ones that linger. Returns the exit codes."""
+        for p in self.procs:
+            p.interrupt()
+        deadline = time.monotonic() + timeout
+        for p in self.procs:
+            try:
+                p.proc.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.proc.terminate()
+                try:
+                    p.proc.wait(3.0)
+                except subprocess.TimeoutExpired:
+                    p.proc.kill()
+                    p.proc.wait()
+        for p in self.procs:
+            p.thread.join(2.0)
+        for f in self._files:
+            f.close()
+        self._files.clear()
+        return {p.name: p.poll() for p in self.procs}
+
+    def __enter__(self) -> "Suite":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
+    o: dict[str, list[str]] = {"sim": [], "perception": [], "predictor": []}
+    if args.model:
+        path = str(Path(args.model).expanduser().resolve())
+        o["perception"].append(f"model_path:={path}")
+        o["predictor"].append(f"model_path:={path}")
+    if args.real_time_factor is not None:
+        o["sim"].append(f"real_time_factor:={float(args.real_time_factor)!r}")
+    if args.category:
+        o["sim"].append(f"category:={args.category}")
+    for item in args.param or []:
+        node, sep, assignment = item.partition(":")
+        if not sep or node not in o or ":=" not in assignment:
+            raise ValueError(f"--param {item!r}: use NODE:NAME:=VALUE with NODE one of {sorted(o)}")
+        o[node].append(assignment)
+    return o
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None,
+                        help=f"params file (default: config/{CONFIG_NAME} of this installation)")
+    parser.add_argument("--model", default=None, help="checkpoint for perception and predictor (default: the "
+                        "params file's model_path, i.e. the shipped model)")
+    parser.add_argument("--real-time-factor", type=float, default=None, help="sim speed; 0 = as fast as possible")
+    parser.add_argument("--category", default=None, help="shape category the sim spawns at start")
+    parser.add_argument("--nodes", default=None, help="comma-separated subset to start (default: all three)")
+    parser.add_argument("--param", action="append", metavar="NODE:NAME:=VALUE",
+                        help="override one parameter of one node (repeatable)")
+    parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log")
+    parser.add_argument("--log-level", default=None, choices=["debug", "info", "warn", "error", "fatal"])
+    parser.add_argument("--startup-timeout", type=float, default=180.0, help="s to wait for all nodes to be ready")
+
+
+def run(args: argparse.Namespace) -> int:
+    suite = Suite(args.config, overrides_from_args(args), args.nodes.split(",") if args.nodes else None,
+                  args.log_dir, args.log_level)
+    stop = threading.Event()
+    received: list[int] = []
+
+    def on_signal(signum, _frame) -> None:
+        received.append(signum)
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        suite.start()
+        print(f"physdyn up: starting {', '.join(p.name for p in suite.procs)} with {suite.config}", flush=True)
+        try:
+            deadline = time.monotonic() + args.startup_timeout
+            while not stop.is_set() and not all(p.ready.is_set() for p in suite.procs):
+                d = suite.dead()
+                if d is not None:
+                    d.thread.join(2.0)
+                    print(f"physdyn up: error: node '{d.name}' exited with code {d.poll()} during start-up",
+                          file=sys.stderr, flush=True)
+                    return 1
+                if time.monotonic() > deadline:
+                    print(f"physdyn up: error: not ready after {args.startup_timeout:.0f} s", file=sys.stderr)
+                    return 1
+                time.sleep(0.05)
+            if not stop.is_set():
+                print("physdyn up: all nodes ready (Ctrl-C to stop)", flush=True)
+            while not stop.is_set():
+                d = suite.dead()
+                if d is not None:
+                    d.thread.join(2.0)
+                    print(f"physdyn up: error: node '{d.name}' died with code {d.poll()}; stopping the others",
+                          file=sys.stderr, flush=True)
+                    return 1
+                stop.wait(0.2)
+            return 0
+        finally:
+            codes = suite.stop()
+            if received:
+                bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+                if bad:
+                    print(f"physdyn up: nodes exited with {bad}", file=sys.stderr)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)

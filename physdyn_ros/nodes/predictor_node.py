@@ -1,0 +1,428 @@
+"""Predictor: shape feature + the velocities right after a push -> the predicted trajectory of the object.
+
+Inputs
+  shape_feature   (ShapeFeature)   from the perception node; the last few per object are kept
+  initial_twist   (TwistStamped)   velocities right after a push, table frame; each one triggers a prediction
+  object_state    (ObjectState)    the object's pose over time (tracker or sim): gives the pose at the push
+  observed_state  (ObjectState)    observed states after the push, used when steps_in > 0 to refine the
+                                   prediction (the paper's "steps in": adapts to the real friction)
+Outputs (reliable, transient local, depth 1: the latest prediction reaches late joiners)
+  predicted_trajectory (PredictedTrajectory), predicted_path (nav_msgs/Path), predicted_markers (MarkerArray)
+Service
+  predict_trajectory (PredictTrajectory): a one-off roll-out for a cloud or a known object_id.
+
+The model is loaded once at start; a checkpoint that cannot be loaded stops the node with a non-zero exit.
+Roll-outs (topic and service) run in one MutuallyExclusiveCallbackGroup, so torch runs in one thread at a time,
+while the data callbacks (features, states) run in another group and keep filling the buffers.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import Path
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
+
+from ..conventions import TABLE_FRAME
+from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
+from ..ros.cloud import cloud_to_xyz
+from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
+from ..ros.model import load_predictor
+from ..ros.params import declare
+from ..ros.trajectory import msg_to_path, trajectory_markers, trajectory_to_msg
+from ..srv import PredictTrajectory
+
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Features are latched by the perception node; keep a few per object (several objects may be published).
+FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: States may arrive in bursts (the sim at real_time_factor 0): a deep queue loses none.
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE)
+#: A stamp this close to another counts as the same instant (float round-trips of stamps).
+SAME_INSTANT_NS = 1_000_000
+NS = 1e-9
+
+
+class RequestError(ValueError):
+    """A bad input: the reason is logged or returned to the caller; nothing is published."""
+
+
+@dataclass
+class PendingRefinement:
+    """A prediction waiting for `steps_in` observed states before it is re-run with them."""
+
+    object_id: str
+    t0_ns: int
+    position: np.ndarray
+    orientation: np.ndarray
+    lin_vel: np.ndarray
+    ang_vel: np.ndarray
+    feature: ShapeFeature
+    deadline: float  # time.monotonic() after which the refinement is dropped
+
+
+class PredictorNode(Node):
+    """Publishes a predicted trajectory for every initial_twist, and answers predict_trajectory."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("predictor", **kwargs)
+        model_path = declare(self, "model_path", "", "checkpoint to load once at start; empty = the shipped "
+                             "default model", read_only=True)
+        device = declare(self, "device", "cpu", "torch device", read_only=True)
+        threads = declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription)",
+                          read_only=True, low=1, high=256)
+        self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
+                                        "output; inputs in another frame are rejected (no tf lookup)",
+                                        read_only=True)
+        declare(self, "object_id", "", "predict for this object only; empty = the object of the latest "
+                "shape feature")
+        declare(self, "horizon", 60, "steps predicted per push (1/15 s each) and the service default", low=1)
+        declare(self, "initial_pose_source", "object_state", "'object_state': pose at the push = the "
+                "object_state stamped at the twist's stamp (waits up to state_wait for it); 'shape_feature': "
+                "the feature's centroid and canonical heading (no tracker needed; predicted poses are then "
+                "those of the cloud's canonical frame)")
+        declare(self, "max_feature_age", 5.0, "a shape feature older than this (s, by stamps) than the twist "
+                "is stale: no prediction; 0 = no limit", low=0.0)
+        declare(self, "max_state_age", 0.5, "the object_state used as initial pose must be within this many "
+                "seconds of the twist's stamp", low=0.0)
+        declare(self, "state_wait", 0.25, "s to wait for an object_state stamped at the twist's stamp", low=0.0,
+                high=10.0)
+        declare(self, "max_linear_speed", 5.0, "initial |v| above this (m/s) is rejected as absurd", low=0.0)
+        declare(self, "max_angular_speed", 60.0, "initial |w| above this (rad/s) is rejected as absurd", low=0.0)
+        declare(self, "steps_in", 0, "observed states (observed_state topic) after the push to feed the model "
+                "before it predicts on its own; > 0 publishes a second, refined trajectory", low=0)
+        declare(self, "box_every", 10, "a CUBE marker every this many steps (and at the last)", low=1)
+
+        self.predictor = load_predictor(self, model_path, device, threads)
+        self.model_id: str = self.predictor.model_id
+        self._lock = threading.Condition()
+        self._features: dict[str, deque[ShapeFeature]] = {}
+        self._latest_feature_id: str | None = None
+        self._states: dict[str, deque[ObjectState]] = {}
+        self._observed: dict[str, deque[ObjectState]] = {}
+        self._pending: list[PendingRefinement] = []
+        self.predictions = 0
+        self.rejected = 0
+        self.last_error = ""
+
+        self._infer = MutuallyExclusiveCallbackGroup()
+        self._data = MutuallyExclusiveCallbackGroup()
+        self.pub_traj = self.create_publisher(PredictedTrajectory, "predicted_trajectory", LATCHED)
+        self.pub_path = self.create_publisher(Path, "predicted_path", LATCHED)
+        self.pub_markers = self.create_publisher(MarkerArray, "predicted_markers", LATCHED)
+        self.create_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
+                                 callback_group=self._data)
+        self.create_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._data)
+        self.create_subscription(ObjectState, "observed_state", self._on_observed, STATE_QOS,
+                                 callback_group=self._data)
+        self.create_subscription(TwistStamped, "initial_twist", self._on_twist, 10, callback_group=self._infer)
+        self.create_service(PredictTrajectory, "predict_trajectory", self._on_service, callback_group=self._infer)
+        self.create_timer(0.05, self._on_refine_timer, callback_group=self._infer)
+        self.get_logger().info(f"ready: model {self.model_id}, horizon {self.get_parameter('horizon').value}, "
+                               f"frame '{self.table_frame}'")
+
+    # ---------------------------------------------------------------------------------------------- buffers
+    def _on_feature(self, msg: ShapeFeature) -> None:
+        with self._lock:
+            self._features.setdefault(msg.object_id, deque(maxlen=16)).append(msg)
+            self._latest_feature_id = msg.object_id
+            self._lock.notify_all()
+
+    def _on_state(self, msg: ObjectState) -> None:
+        with self._lock:
+            self._states.setdefault(msg.object_id, deque(maxlen=512)).append(msg)
+            self._lock.notify_all()
+
+    def _on_observed(self, msg: ObjectState) -> None:
+        with self._lock:
+            self._observed.setdefault(msg.object_id, deque(maxlen=512)).append(msg)
+
+    # ----------------------------------------------------------------------------------------------- checks
+    def _param(self, name: str):
+        return self.get_parameter(name).value
+
+    def check_frame(self, frame_id: str, what: str) -> None:
+        if frame_id != self.table_frame:
+            raise RequestError(f"{what} frame_id '{frame_id}' is not the table frame '{self.table_frame}' "
+                               "(this node does not use tf)")
+
+    def check_velocity(self, lin: np.ndarray, ang: np.ndarray) -> None:
+        if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
+            raise RequestError(f"velocity is not finite: linear {lin.tolist()}, angular {ang.tolist()}")
+        vmax, wmax = float(self._param("max_linear_speed")), float(self._param("max_angular_speed"))
+        if np.linalg.norm(lin) > vmax:
+            raise RequestError(f"linear speed {np.linalg.norm(lin):.3g} m/s exceeds max_linear_speed {vmax:g}")
+        if np.linalg.norm(ang) > wmax:
+            raise RequestError(f"angular speed {np.linalg.norm(ang):.3g} rad/s exceeds max_angular_speed {wmax:g}")
+
+    def target_object(self, requested: str = "") -> str:
+        oid = requested or self._param("object_id") or self._latest_feature_id
+        if not oid:
+            raise RequestError("no shape feature received yet (is the perception node running and does it see "
+                               "the object?)")
+        return oid
+
+    def select_feature(self, object_id: str, t_ns: int | None) -> ShapeFeature:
+        """The newest feature of object_id stamped at or before t (or the newest one when t is None); it must be
+        fresh and come from this node's model."""
+        with self._lock:
+            feats = list(self._features.get(object_id, ()))
+        if not feats:
+            known = ", ".join(sorted(self._features)) or "none"
+            raise RequestError(f"no shape feature received for object '{object_id}' (known objects: {known})")
+        if t_ns is None:
+            feat = feats[-1]
+        else:
+            before = [f for f in feats if time_to_ns(f.header.stamp) <= t_ns + SAME_INSTANT_NS]
+            feat = before[-1] if before else feats[0]
+            age = (t_ns - time_to_ns(feat.header.stamp)) * NS
+            max_age = float(self._param("max_feature_age"))
+            if max_age > 0 and abs(age) > max_age:
+                raise RequestError(f"shape feature of '{object_id}' is stale: {age:.2f} s older than the push "
+                                   f"(max_feature_age {max_age:g} s); is the perception node receiving clouds?")
+        if feat.model_id != self.model_id:
+            raise RequestError(f"shape feature of '{object_id}' comes from model '{feat.model_id}' but this node "
+                               f"runs '{self.model_id}': run perception with the same model_path")
+        if feat.header.frame_id != self.table_frame:
+            raise RequestError(f"shape feature frame_id '{feat.header.frame_id}' is not the table frame "
+                               f"'{self.table_frame}'")
+        if len(feat.feature) != int(self.predictor.feature_dim):
+            raise RequestError(f"shape feature has {len(feat.feature)} numbers, the model expects "
+                               f"{self.predictor.feature_dim}")
+        return feat
+
+    def shape_code(self, feat: ShapeFeature):
+        from ..predictor import ShapeCode
+
+        return ShapeCode(feature=np.asarray(feat.feature, dtype=np.float32), heading=float(feat.heading),
+                         centroid=xyz_to_numpy(feat.centroid), half_extents=xyz_to_numpy(feat.half_extents),
+                         num_points=int(feat.num_points), model_id=feat.model_id)
+
+    def pose_at(self, object_id: str, t_ns: int, feat: ShapeFeature) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Initial (position, orientation) for a push at t_ns (None, None: the Predictor's defaults)."""
+        source = self._param("initial_pose_source")
+        if source == "shape_feature":
+            h = float(feat.heading)
+            return xyz_to_numpy(feat.centroid), np.array([0.0, 0.0, np.sin(h / 2), np.cos(h / 2)])
+        if source != "object_state":
+            raise RequestError(f"initial_pose_source must be 'object_state' or 'shape_feature', not '{source}'")
+        deadline = time.monotonic() + float(self._param("state_wait"))
+        with self._lock:
+            while True:
+                states = [s for s in self._states.get(object_id, ())
+                          if time_to_ns(s.header.stamp) <= t_ns + SAME_INSTANT_NS]
+                best = states[-1] if states else None
+                # Wait (bounded) for the state of the push instant: it may arrive just after the twist.
+                if best is not None and time_to_ns(best.header.stamp) >= t_ns - SAME_INSTANT_NS:
+                    break
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._lock.wait(left)
+        if best is None:
+            raise RequestError(f"no object_state of '{object_id}' at or before the push (initial_pose_source "
+                               "object_state needs a tracker or the sim on object_state)")
+        gap = (t_ns - time_to_ns(best.header.stamp)) * NS
+        if gap > float(self._param("max_state_age")):
+            raise RequestError(f"latest object_state of '{object_id}' is {gap:.2f} s older than the push "
+                               f"(max_state_age {self._param('max_state_age'):g} s)")
+        self.check_frame(best.header.frame_id, "object_state")
+        try:
+            return pose_to_numpy(best.pose)
+        except ValueError as exc:
+            raise RequestError(f"object_state pose: {exc}") from None
+
+    # ------------------------------------------------------------------------------------------ predictions
+    def horizon(self, requested: int = 0) -> int:
+        h = int(requested) or int(self._param("horizon"))
+        if h > int(self.predictor.max_horizon):
+            raise RequestError(f"horizon {h} exceeds the model's max_horizon {self.predictor.max_horizon}")
+        return h
+
+    def publish(self, traj: PredictedTrajectory, feat: ShapeFeature | None) -> None:
+        self.pub_traj.publish(traj)
+        self.pub_path.publish(msg_to_path(traj))
+        extents = xyz_to_numpy(feat.half_extents) if feat is not None else None
+        heading = float(feat.heading) if feat is not None else 0.0
+        self.pub_markers.publish(trajectory_markers(traj, extents, heading, int(self._param("box_every"))))
+
+    def _fail(self, reason: str) -> None:
+        self.rejected += 1
+        self.last_error = reason
+        self.get_logger().error(f"no prediction: {reason}", throttle_duration_sec=1.0)
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        t_start = time.monotonic()
+        try:
+            self.check_frame(msg.header.frame_id, "initial_twist")
+            lin, ang = twist_to_numpy(msg.twist)
+            self.check_velocity(lin, ang)
+            t_ns = time_to_ns(msg.header.stamp)
+            object_id = self.target_object()
+            feat = self.select_feature(object_id, t_ns)
+            position, orientation = self.pose_at(object_id, t_ns, feat)
+            traj = self.predictor.rollout(self.shape_code(feat), lin, ang, horizon=self.horizon(),
+                                          position=position, orientation=orientation)
+        except ValueError as exc:  # RequestError, or the Predictor refusing an input
+            self._fail(str(exc))
+            return
+        except Exception as exc:  # noqa: BLE001 - never let one bad message take the node down
+            self._fail(f"internal error: {type(exc).__name__}: {exc}")
+            return
+        out = trajectory_to_msg(traj, self.table_frame, msg.header.stamp, object_id, self.model_id)
+        self.publish(out, feat)
+        self.predictions += 1
+        self.get_logger().info(
+            f"predicted {len(out.states) - 1} steps for '{object_id}' in {1e3 * (time.monotonic() - t_start):.1f} ms:"
+            f" final position ({traj.positions[-1][0]:.3f}, {traj.positions[-1][1]:.3f}) m, topple probability "
+            f"{out.topple_probability:.2f}")
+        steps_in = int(self._param("steps_in"))
+        if steps_in > 0:
+            self._pending.append(PendingRefinement(
+                object_id, t_ns, np.asarray(traj.positions[0]), np.asarray(traj.orientations[0]), lin, ang, feat,
+                time.monotonic() + steps_in * float(self.predictor.dt) * 3 + 2.0))
+
+    def _on_refine_timer(self) -> None:
+        """Re-run pending predictions once `steps_in` observed states after their push have arrived."""
+        if not self._pending:
+            return
+        steps_in = int(self._param("steps_in"))
+        dt_ns = int(round(float(self.predictor.dt) * 1e9))
+        keep = []
+        for p in self._pending:
+            with self._lock:
+                obs = [s for s in self._observed.get(p.object_id, ())
+                       if p.t0_ns + dt_ns // 2 <= time_to_ns(s.header.stamp)]
+            obs = obs[:steps_in]
+            if len(obs) < steps_in:
+                if time.monotonic() < p.deadline:
+                    keep.append(p)
+                else:
+                    self._fail(f"steps_in {steps_in}: only {len(obs)} observed_state messages of '{p.object_id}' "
+                               "after the push; refinement dropped")
+                continue
+            try:
+                observed = self.observed(obs)
+                traj = self.predictor.rollout(self.shape_code(p.feature), p.lin_vel, p.ang_vel,
+                                              horizon=self.horizon(), position=p.position, orientation=p.orientation,
+                                              observed=observed)
+            except Exception as exc:  # noqa: BLE001
+                self._fail(f"refinement with {steps_in} observed states failed: {exc}")
+                continue
+            out = trajectory_to_msg(traj, self.table_frame, ns_to_time(p.t0_ns), p.object_id, self.model_id,
+                                    steps_in=steps_in)
+            self.publish(out, p.feature)
+            self.predictions += 1
+        self._pending = keep
+
+    def observed(self, states: list[ObjectState]):
+        """Observed ObjectStates of frames 1..K after the push -> the Predictor's `observed` argument."""
+        from ..predictor import Observed
+
+        pos, quat, lin, ang = [], [], [], []
+        for s in states:
+            self.check_frame(s.header.frame_id, "observed state")
+            try:
+                p, q = pose_to_numpy(s.pose)
+            except ValueError as exc:
+                raise RequestError(f"observed state: {exc}") from None
+            v, w = twist_to_numpy(s.twist)
+            if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+                raise RequestError("observed state velocity is not finite")
+            pos.append(p)
+            quat.append(q)
+            lin.append(v)
+            ang.append(w)
+        return Observed(positions=np.array(pos).reshape(-1, 3), orientations=np.array(quat).reshape(-1, 4),
+                        lin_vels=np.array(lin).reshape(-1, 3), ang_vels=np.array(ang).reshape(-1, 3))
+
+    # ---------------------------------------------------------------------------------------------- service
+    def _on_service(self, req: PredictTrajectory.Request,
+                    res: PredictTrajectory.Response) -> PredictTrajectory.Response:
+        t_start = time.monotonic()
+        try:
+            self.check_frame(req.header.frame_id, "request header")
+            horizon = self.horizon(req.horizon)
+            lin, ang = twist_to_numpy(req.initial_twist)
+            self.check_velocity(lin, ang)
+            try:
+                position, orientation = pose_to_numpy(req.initial_pose, zero_is_identity=True)
+            except ValueError as exc:
+                raise RequestError(f"initial_pose: {exc}") from None
+            feat = None
+            if req.cloud.width * req.cloud.height > 0 or len(req.cloud.data) > 0:
+                if req.cloud.header.frame_id not in ("", self.table_frame):
+                    self.check_frame(req.cloud.header.frame_id, "cloud")
+                try:
+                    pts = cloud_to_xyz(req.cloud, max_points=100_000, rng=np.random.default_rng(0))
+                except ValueError as exc:
+                    raise RequestError(f"cloud: {exc}") from None
+                if len(pts) < 3:
+                    raise RequestError(f"cloud has {len(pts)} finite points; at least 3 are needed")
+                shape = self.predictor.encode(pts)
+                object_id = req.object_id or "cloud"
+            else:
+                if not req.object_id and not self._latest_feature_id:
+                    raise RequestError("request has neither a cloud nor an object_id, and no shape feature was "
+                                       "received")
+                object_id = self.target_object(req.object_id)
+                stamp_ns = time_to_ns(req.header.stamp)
+                feat = self.select_feature(object_id, stamp_ns if stamp_ns > 0 else None)
+                shape = self.shape_code(feat)
+            observed = self.observed(list(req.observed)) if req.observed else None
+            traj = self.predictor.rollout(shape, lin, ang, horizon=horizon, position=position,
+                                          orientation=orientation, observed=observed)
+        except ValueError as exc:
+            res.success, res.message = False, str(exc)
+            self.rejected += 1
+            self.last_error = res.message
+            self.get_logger().warning(f"predict_trajectory refused: {res.message}", throttle_duration_sec=1.0)
+            return res
+        except Exception as exc:  # noqa: BLE001 - answer, never crash on a request
+            res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
+        res.trajectory = trajectory_to_msg(traj, self.table_frame, stamp, object_id, self.model_id,
+                                           steps_in=len(req.observed))
+        res.path = msg_to_path(res.trajectory)
+        res.topple_probability = res.trajectory.topple_probability
+        res.success = True
+        res.message = f"{horizon} steps in {1e3 * (time.monotonic() - t_start):.1f} ms"
+        return res
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = PredictorNode()
+        # Threads: one for roll-outs (their group is mutually exclusive), the others keep the buffers filling.
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - e.g. the model cannot be loaded: say why, exit non-zero
+        rclpy.logging.get_logger("predictor").fatal(f"cannot start: {exc}")
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

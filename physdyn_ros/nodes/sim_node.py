@@ -1,0 +1,443 @@
+"""Simulated table: one object in pybullet (the same core as data generation), pushed through a service.
+
+Publishes the object's cloud on `cloud`, its true state on `object_state` / `odom` / `object_pose`, and the
+velocities right after a push on `initial_twist`. Every pybullet call runs in one MutuallyExclusiveCallbackGroup,
+so one thread at a time touches the simulator (pybullet clients are not thread-safe).
+
+Time: messages carry the simulation's time. It starts at the node clock and, while no push runs, follows it;
+during a push, frame k is stamped t0 + k * DT exactly. With real_time_factor 1 that is the wall clock; with
+real_time_factor 0 pushes are simulated as fast as possible, so the stamps run ahead of the wall clock (and stay
+ahead by the simulated time gained; set publish_clock and use_sim_time to share this clock with other nodes).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseStamped, TwistStamped
+from nav_msgs.msg import Odometry
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from ..conventions import DT, TABLE_FRAME
+from ..msg import ObjectState
+from ..ros.cloud import xyz_to_cloud
+from ..ros.convert import ns_to_time, pose, quat_to_matrix, twist, vector3, xyz_to_numpy
+from ..ros.params import declare
+from ..ros.trajectory import object_state
+from ..srv import PushObject, SpawnObject
+
+DT_NS = int(round(DT * 1e9))
+#: object_state keeps a deep history: at real_time_factor 0 a whole push is published within milliseconds and a
+#: subscriber that wants every frame (the demo, a recorder) must not lose the early ones.
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+#: Sensor drivers publish reliable (REP 2003); consumers may subscribe best effort.
+CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class SimNode(Node):
+    """Stand-in for the real table: spawn, push and watch one simulated object."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("sim", **kwargs)
+        self.table_frame: str = declare(self, "table_frame", TABLE_FRAME,
+                                        "fixed frame of the table (z up, plane z = 0); frame_id of every output",
+                                        read_only=True)
+        self.default_object_id: str = declare(self, "object_id", "object",
+                                              "name of the spawned object (child_frame_id of odom)")
+        declare(self, "category", "box", "shape category at start: box, cylinder, bottle, mug, trashcan, speaker "
+                "or pybullet_data (out-of-category meshes)")
+        declare(self, "shape_seed", 0, "which shape of the category (procedural index / pybullet_data mesh index)",
+                low=0)
+        declare(self, "mesh_path", "", "mesh file (OBJ/STL/PLY, metres, z up) to spawn at start instead of a "
+                "category")
+        declare(self, "scale", [1.0, 1.0, 1.0], "per-axis scale of the shape (object frame)")
+        declare(self, "spawn_pose", [0.0, 0.0, 0.0], "x (m), y (m), yaw (rad) of the object at spawn and reset")
+        self.friction: float = declare(self, "friction", 0.5, "effective Coulomb friction coefficient with the "
+                                       "table", low=0.0, high=10.0)
+        declare(self, "collision", "auto", "collision geometry: 'auto' (hull for convex shapes, cached V-HACD "
+                "decomposition otherwise) or 'hull' (convex hull for everything; faster first spawn)",
+                read_only=True)
+        self.rate: float = declare(self, "rate", 15.0, "Hz at which the state is published while nothing moves "
+                                   "(every simulated frame is published during a push)", read_only=True,
+                                   low=0.1, high=1000.0)
+        self.rtf: float = declare(self, "real_time_factor", 1.0, "simulated seconds per wall second during a "
+                                  "push; 0 = as fast as possible", read_only=True, low=0.0, high=100.0)
+        self.cloud_rate: float = declare(self, "publish_cloud_rate", 2.0, "Hz of the cloud topic; 0 = no cloud",
+                                         read_only=True, low=0.0, high=100.0)
+        declare(self, "cloud_source", "surface", "'surface': samples of the whole object surface posed by the "
+                "current state; 'camera': partial view rendered by a simulated depth camera (pybullet "
+                "TinyRenderer), object pixels only")
+        declare(self, "cloud_points", 1024, "points sampled on the surface (cloud_source surface)", low=16,
+                high=10_000_000)
+        declare(self, "cloud_noise", 0.0, "std dev of Gaussian noise added to each cloud point, m", low=0.0,
+                high=0.1)
+        declare(self, "camera_eye", [0.6, 0.0, 0.45], "camera position in the table frame, m (cloud_source "
+                "camera)")
+        declare(self, "camera_target", [0.0, 0.0, 0.05], "point the camera looks at, table frame, m")
+        declare(self, "camera_resolution", [320, 240], "rendered image width, height in pixels")
+        declare(self, "camera_fov", 60.0, "vertical field of view, degrees", low=1.0, high=170.0)
+        declare(self, "max_push_time", 10.0, "s of simulated time after which a push ends even if the object "
+                "still moves", low=DT, high=600.0)
+        declare(self, "max_linear_speed", 10.0, "pushes giving a faster centre of mass are rejected, m/s",
+                low=0.0)
+        declare(self, "max_angular_speed", 100.0, "pushes giving a faster spin are rejected, rad/s", low=0.0)
+        self.publish_clock: bool = declare(self, "publish_clock", False, "publish the simulation time on /clock",
+                                           read_only=True)
+
+        from ..sim import SimConfig, Simulator  # pybullet is imported here, once per process
+
+        self.sim = Simulator(SimConfig(collision=self.get_parameter("collision").value))
+        self.object_id = self.default_object_id
+        self.spawn_pose = (0.0, 0.0, 0.0)
+        self._cloud_obj = np.zeros((0, 3))  # surface samples in the object frame
+        self._visual: tuple[object, int] | None = None  # (shape, body) drawn by the simulated camera
+        self._rng = np.random.default_rng(0)
+        # push bookkeeping (only touched from the sim group)
+        self.push_id = 0
+        self._running = False
+        self._frame = 0
+        self._t0_ns = 0
+        self._wall0 = 0.0
+        self._quiet = 0
+        self._sim_ns = self.get_clock().now().nanoseconds
+        self._wall_last = time.monotonic()
+
+        self._group = MutuallyExclusiveCallbackGroup()
+        self.pub_state = self.create_publisher(ObjectState, "object_state", STATE_QOS)
+        self.pub_odom = self.create_publisher(Odometry, "odom", 50)
+        self.pub_pose = self.create_publisher(PoseStamped, "object_pose", 50)
+        self.pub_twist = self.create_publisher(TwistStamped, "initial_twist", 10)
+        self.pub_cloud = self.create_publisher(PointCloud2, "cloud", CLOUD_QOS)
+        self.pub_clock = self.create_publisher(Clock, "/clock", 10) if self.publish_clock else None
+        g = self._group
+        # At real_time_factor 0 the step timer fires every millisecond and simulates a batch of frames per tick,
+        # so services (reset, rejected pushes) are still answered between batches.
+        step_period = 0.001 if self.rtf == 0 else DT / self.rtf / 2
+        self._step_timer = self.create_timer(step_period, self._on_step, callback_group=g)
+        self._step_timer.cancel()
+
+        p = self.get_parameter
+        self.spawn(self.default_object_id, p("category").value, p("mesh_path").value, p("shape_seed").value,
+                   p("scale").value, tuple(p("spawn_pose").value), self.friction)
+
+        self.create_service(PushObject, "push", self._on_push, callback_group=g)
+        self.create_service(Trigger, "reset", self._on_reset, callback_group=g)
+        self.create_service(SpawnObject, "spawn_object", self._on_spawn, callback_group=g)
+        self.create_timer(1.0 / self.rate, self._on_idle, callback_group=g)
+        if self.cloud_rate > 0:
+            self.create_timer(1.0 / self.cloud_rate, self._on_cloud, callback_group=g)
+        self.get_logger().info(
+            f"ready: {self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
+            f"'{self.table_frame}', real_time_factor {self.rtf:g}")
+
+    # ------------------------------------------------------------------------------------------------ objects
+    def load_shape(self, category: str, mesh_path: str, shape_seed: int):
+        """A Shape from a mesh file, a procedural category or a pybullet_data mesh; ValueError if impossible."""
+        from ..shapes import CATEGORIES, PYBULLET_DATA_CATEGORY, load_mesh, make_procedural, pybullet_data_meshes
+
+        if mesh_path:
+            return load_mesh(mesh_path)
+        if category == PYBULLET_DATA_CATEGORY:
+            specs = pybullet_data_meshes()
+            if not specs:
+                raise ValueError("no pybullet_data meshes are installed")
+            # Some meshes are not closed solids: take the next usable one, deterministically.
+            errors = []
+            for i in range(len(specs)):
+                spec = specs[(int(shape_seed) + i) % len(specs)]
+                try:
+                    return load_mesh(spec.path, name=f"{PYBULLET_DATA_CATEGORY}_{spec.name}",
+                                     category=PYBULLET_DATA_CATEGORY, up_axis=spec.up_axis, target_size=spec.size)
+                except ValueError as exc:
+                    errors.append(str(exc))
+            raise ValueError("no usable pybullet_data mesh: " + "; ".join(errors[:3]))
+        if category not in CATEGORIES:
+            raise ValueError(f"unknown category {category!r}; use one of {', '.join(CATEGORIES)}, "
+                             f"{PYBULLET_DATA_CATEGORY}, or set mesh_path")
+        return make_procedural(category, int(shape_seed))
+
+    def spawn(self, object_id: str, category: str, mesh_path: str, shape_seed: int, scale, spawn_pose,
+              friction: float) -> None:
+        """Replace the object (raises ValueError on bad input; the previous object is kept then)."""
+        scale = np.asarray(scale, dtype=np.float64).reshape(-1)
+        if scale.size != 3 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
+            raise ValueError(f"scale must be 3 positive numbers, got {scale.tolist()}")
+        x, y, yaw = (float(v) for v in spawn_pose)
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            raise ValueError("spawn pose must be finite")
+        if not 0.0 <= friction <= 10.0:
+            raise ValueError(f"friction must be in [0, 10], got {friction}")
+        shape = self.load_shape(category, mesh_path, shape_seed)
+        self._end_push()
+        self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction)
+        self._visual = None
+        self.object_id = object_id or self.default_object_id
+        self.spawn_pose = (x, y, yaw)
+        n = int(self.get_parameter("cloud_points").value)
+        if n == len(shape.points):
+            pts = shape.points.astype(np.float64)
+        else:
+            from ..shapes import sample_surface
+            pts = sample_surface(shape.vertices, shape.faces, n, seed=0).astype(np.float64)
+        self._cloud_obj = pts * scale
+        self._publish_state(self._idle_stamp())
+
+    def half_extents(self) -> np.ndarray:
+        return 0.5 * self.sim.shape.extents * self.sim.scale
+
+    # ------------------------------------------------------------------------------------------------- time
+    def _idle_stamp(self) -> int:
+        """Simulation time while nothing moves: follows the node clock, never goes backwards."""
+        wall = time.monotonic()
+        self._sim_ns = max(self.get_clock().now().nanoseconds,
+                           self._sim_ns + int((wall - self._wall_last) * 1e9))
+        self._wall_last = wall
+        return self._sim_ns
+
+    # ----------------------------------------------------------------------------------------------- outputs
+    def _publish_state(self, stamp_ns: int) -> None:
+        pos, q, v, w = self.sim.state()
+        stamp = ns_to_time(stamp_ns)
+        msg = object_state(self.table_frame, stamp, self.object_id, pos, q, v, w)
+        self.pub_state.publish(msg)
+        header = Header(frame_id=self.table_frame, stamp=stamp)
+        self.pub_pose.publish(PoseStamped(header=header, pose=msg.pose))
+        # nav_msgs/Odometry: the twist is expressed in child_frame_id (the object's own axes).
+        rot = quat_to_matrix(q)
+        odom = Odometry(header=header, child_frame_id=self.object_id)
+        odom.pose.pose = msg.pose
+        odom.twist.twist = twist(rot.T @ v, rot.T @ w)
+        self.pub_odom.publish(odom)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(Clock(clock=stamp))
+
+    def current_cloud(self) -> np.ndarray:
+        """The cloud the sensor would see now, table frame, (N, 3)."""
+        if self.get_parameter("cloud_source").value == "camera":
+            pts = self._camera_cloud()
+        else:
+            pos, q, _, _ = self.sim.state()
+            pts = self._cloud_obj @ quat_to_matrix(q).T + pos
+        noise = float(self.get_parameter("cloud_noise").value)
+        if noise > 0 and len(pts):
+            pts = pts + self._rng.normal(0.0, noise, pts.shape)
+        return pts
+
+    def _camera_cloud(self) -> np.ndarray:
+        """Back-project the object's pixels of a rendered depth image (pybullet TinyRenderer, DIRECT mode)."""
+        p = self.get_parameter
+        eye, target = np.asarray(p("camera_eye").value, float), np.asarray(p("camera_target").value, float)
+        width, height = (int(v) for v in p("camera_resolution").value)
+        fov = float(p("camera_fov").value)
+        near, far = 0.05, 5.0  # tight range: better depth-buffer precision
+        fwd = target - eye
+        fwd /= np.linalg.norm(fwd)
+        up_hint = np.array([0.0, 0.0, 1.0]) if abs(fwd[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+        right = np.cross(fwd, up_hint)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        c = self.sim.client
+        bodies = {self.sim.body, self._visual_body()}
+        view = c.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist())
+        proj = c.computeProjectionMatrixFOV(fov, width / height, near, far)
+        _, _, _, depth, seg = c.getCameraImage(width, height, view, proj, renderer=c.ER_TINY_RENDERER)
+        depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
+        seg = np.asarray(seg).reshape(height, width)
+        mask = np.isin(seg & ((1 << 24) - 1), list(bodies))  # object pixels only (seg = body + (link + 1) << 24)
+        z = far * near / (far - (far - near) * depth[mask])  # OpenGL depth buffer -> distance along fwd
+        v_idx, u_idx = np.nonzero(mask)
+        tan = math.tan(math.radians(fov) / 2)
+        xn = (2.0 * (u_idx + 0.5) / width - 1.0) * tan * width / height
+        yn = (1.0 - 2.0 * (v_idx + 0.5) / height) * tan
+        return eye + z[:, None] * (fwd + xn[:, None] * right + yn[:, None] * up)
+
+    def _visual_body(self) -> int:
+        """A collision-free, massless copy of the object's mesh that the renderer can draw, posed like the object.
+
+        Bodies built from collision vertices have no visual shape, so TinyRenderer would not see them. The copy
+        has no collision shape: physics and ray tests ignore it. A spawn rebuilds the world, hence the check.
+        """
+        c = self.sim.client
+        if self._visual is None or self._visual[0] is not self.sim.shape or self._visual[1] >= c.getNumBodies():
+            shape = self.sim.shape
+            vs = c.createVisualShape(c.GEOM_MESH, vertices=shape.vertices.tolist(),
+                                     indices=shape.faces.reshape(-1).tolist(), meshScale=self.sim.scale.tolist())
+            self._visual = (shape, c.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1,
+                                                     baseVisualShapeIndex=vs))
+        pos, q, _, _ = self.sim.state()
+        c.resetBasePositionAndOrientation(self._visual[1], pos.tolist(), q.tolist())
+        return self._visual[1]
+
+    def _on_cloud(self) -> None:
+        stamp_ns = self._sim_ns if self._running else self._idle_stamp()
+        self.pub_cloud.publish(xyz_to_cloud(self.current_cloud(), self.table_frame, ns_to_time(stamp_ns)))
+
+    def _on_idle(self) -> None:
+        if not self._running:
+            self._publish_state(self._idle_stamp())
+
+    # ------------------------------------------------------------------------------------------------ pushes
+    def start_push(self, req: PushObject.Request) -> tuple[bool, str]:
+        """Apply a push; on success frame 0 and initial_twist are published. Returns (ok, message)."""
+        if self._running:
+            return False, (f"push rejected: push {self.push_id} is still running (the object moves); wait until "
+                           "it comes to rest or call reset")
+        if req.object_id and req.object_id != self.object_id:
+            return False, f"push rejected: unknown object_id {req.object_id!r} (current object: {self.object_id!r})"
+        vmax = float(self.get_parameter("max_linear_speed").value)
+        wmax = float(self.get_parameter("max_angular_speed").value)
+        pos, q, v_before, w_before = self.sim.state()
+        if req.use_velocity:
+            lin, ang = xyz_to_numpy(req.velocity.linear), xyz_to_numpy(req.velocity.angular)
+            if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
+                return False, "push rejected: velocity is not finite"
+            if np.linalg.norm(lin) > vmax or np.linalg.norm(ang) > wmax:
+                return False, (f"push rejected: velocity |v| = {np.linalg.norm(lin):.3g} m/s, |w| = "
+                               f"{np.linalg.norm(ang):.3g} rad/s exceeds max_linear_speed {vmax:g} / "
+                               f"max_angular_speed {wmax:g}")
+            self.sim.set_velocity(lin, ang)
+        else:
+            impulse, point = xyz_to_numpy(req.impulse), xyz_to_numpy(req.point)
+            if not (np.all(np.isfinite(impulse)) and np.all(np.isfinite(point))):
+                return False, "push rejected: impulse or point is not finite"
+            if not np.any(impulse):
+                return False, "push rejected: the impulse is zero"
+            if not np.any(point):
+                point = pos
+            if np.linalg.norm(point - pos) > 1.0:
+                return False, (f"push rejected: point {point.tolist()} is {np.linalg.norm(point - pos):.2f} m from "
+                               "the object's centre of mass")
+            lin, ang = self.sim.apply_impulse(impulse, point)
+            if np.linalg.norm(lin) > vmax or np.linalg.norm(ang) > wmax:
+                self.sim.set_velocity(v_before, w_before)
+                return False, (f"push rejected: the impulse would give |v| = {np.linalg.norm(lin):.3g} m/s, |w| = "
+                               f"{np.linalg.norm(ang):.3g} rad/s (mass {self.sim.mass:.3g} kg), above "
+                               f"max_linear_speed {vmax:g} / max_angular_speed {wmax:g}")
+        # Frame 0 = the state right after the push (the dataset convention: velocities set, pose unchanged).
+        self.push_id += 1
+        self._running, self._frame, self._quiet = True, 0, 0
+        self._t0_ns = self._idle_stamp() + 1  # strictly after every idle stamp already published
+        self._sim_ns = self._t0_ns
+        self._wall0 = time.monotonic()
+        self._publish_state(self._t0_ns)
+        _, _, v, w = self.sim.state()
+        self.pub_twist.publish(TwistStamped(header=Header(frame_id=self.table_frame, stamp=ns_to_time(self._t0_ns)),
+                                            twist=twist(v, w)))
+        self._step_timer.reset()
+        return True, f"push {self.push_id} started"
+
+    def _on_push(self, req: PushObject.Request, res: PushObject.Response) -> PushObject.Response:
+        try:
+            res.success, res.message = self.start_push(req)
+        except Exception as exc:  # noqa: BLE001 - a bad request must never take the node down
+            res.success, res.message = False, f"push failed: {exc}"
+        if res.success:
+            _, _, v, w = self.sim.state()
+            res.push_id = self.push_id
+            res.initial_twist = twist(v, w)
+        else:
+            self.get_logger().warning(res.message)
+        return res
+
+    def _on_step(self) -> None:
+        if not self._running:
+            self._step_timer.cancel()
+            return
+        if self.rtf == 0:
+            frames = 8
+        else:  # catch up with the wall clock (bounded, so a stalled process does not freeze the executor)
+            due = int((time.monotonic() - self._wall0) * self.rtf / DT)
+            frames = min(max(0, due - self._frame), 8)
+        cfg = self.sim.config
+        max_frames = int(round(float(self.get_parameter("max_push_time").value) / DT))
+        for _ in range(frames):
+            _, _, v, w = self.sim.step_frame()
+            self._frame += 1
+            self._sim_ns = self._t0_ns + self._frame * DT_NS
+            still = np.linalg.norm(v) < cfg.rest_lin_vel and np.linalg.norm(w) < cfg.rest_ang_vel
+            self._quiet = self._quiet + 1 if still else 0
+            at_rest = self._quiet >= cfg.rest_frames
+            if at_rest:
+                self.sim.set_velocity(np.zeros(3), np.zeros(3))  # settled: hold it exactly still
+            self._publish_state(self._sim_ns)
+            if at_rest or self._frame >= max_frames:
+                self.get_logger().info(f"push {self.push_id} ended after {self._frame * DT:.2f} s "
+                                       f"({'at rest' if at_rest else 'max_push_time'})")
+                self._end_push()
+                return
+
+    def _end_push(self) -> None:
+        if self._running:
+            self._running = False
+            self._wall_last = time.monotonic()
+        self._step_timer.cancel()
+
+    # ---------------------------------------------------------------------------------------------- services
+    def _on_reset(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        try:
+            self._end_push()
+            x, y, yaw = self.spawn_pose
+            self.sim.spawn(self.sim.shape, scale=self.sim.scale, xy=(x, y), yaw=yaw, friction=self.sim.friction)
+            self._visual = None
+            self._publish_state(self._idle_stamp())
+            res.success, res.message = True, f"{self.object_id} back at ({x:g}, {y:g}, yaw {yaw:g}) at rest"
+        except Exception as exc:  # noqa: BLE001
+            res.success, res.message = False, f"reset failed: {exc}"
+        return res
+
+    def _on_spawn(self, req: SpawnObject.Request, res: SpawnObject.Response) -> SpawnObject.Response:
+        scale = xyz_to_numpy(req.scale)
+        if not np.any(scale):
+            scale = np.ones(3)
+        friction = req.friction if req.friction != 0.0 else float(self.get_parameter("friction").value)
+        category = req.category or self.get_parameter("category").value
+        try:
+            self.spawn(req.object_id, category, req.mesh_path, req.shape_seed, scale, (req.x, req.y, req.yaw),
+                       friction)
+        except Exception as exc:  # noqa: BLE001 - bad mesh, unknown category: answer, keep the old object
+            res.success, res.message = False, f"spawn failed: {exc}"
+            self.get_logger().warning(res.message)
+            return res
+        res.success = True
+        res.message = f"spawned {self.object_id}: {self.sim.shape.name} ({self.sim.mass:.3f} kg)"
+        res.half_extents = vector3(self.half_extents())
+        res.mass = float(self.sim.mass)
+        self.get_logger().info(res.message)
+        return res
+
+    def destroy_node(self) -> None:
+        self.sim.close()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # noqa: BLE001 - a node that cannot start says why and exits non-zero
+        rclpy.logging.get_logger("sim").fatal(f"cannot start: {exc}")
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

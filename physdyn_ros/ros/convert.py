@@ -1,0 +1,124 @@
+"""geometry_msgs / builtin_interfaces <-> numpy (quaternions x, y, z, w as everywhere in physdyn_ros)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from geometry_msgs.msg import Point, Pose, Quaternion, Twist, Vector3
+
+from ..conventions import TOPPLE_ANGLE
+
+NS_PER_S = 1_000_000_000
+
+
+# ------------------------------------------------------------------------------------------------------- time
+def time_to_ns(t: Time) -> int:
+    return int(t.sec) * NS_PER_S + int(t.nanosec)
+
+
+def ns_to_time(ns: int) -> Time:
+    sec, nsec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nsec)
+
+
+def time_to_sec(t: Time) -> float:
+    return time_to_ns(t) / NS_PER_S
+
+
+def duration_from_sec(s: float) -> Duration:
+    sec, nsec = divmod(int(round(s * NS_PER_S)), NS_PER_S)
+    return Duration(sec=sec, nanosec=nsec)
+
+
+def duration_to_sec(d: Duration) -> float:
+    return int(d.sec) + int(d.nanosec) / NS_PER_S
+
+
+# ---------------------------------------------------------------------------------------------------- vectors
+def vector3(v) -> Vector3:
+    x, y, z = (float(c) for c in np.asarray(v, dtype=np.float64).reshape(3))
+    return Vector3(x=x, y=y, z=z)
+
+
+def point(v) -> Point:
+    x, y, z = (float(c) for c in np.asarray(v, dtype=np.float64).reshape(3))
+    return Point(x=x, y=y, z=z)
+
+
+def xyz_to_numpy(v: Vector3 | Point) -> np.ndarray:
+    return np.array([v.x, v.y, v.z], dtype=np.float64)
+
+
+def quaternion(q) -> Quaternion:
+    x, y, z, w = (float(c) for c in np.asarray(q, dtype=np.float64).reshape(4))
+    return Quaternion(x=x, y=y, z=z, w=w)
+
+
+def quaternion_to_numpy(q: Quaternion, zero_is_identity: bool = False) -> np.ndarray:
+    """(x, y, z, w). With zero_is_identity an all-zero quaternion (a default-constructed message) is the identity.
+
+    Raises ValueError for non-finite or zero-norm quaternions; others are normalised.
+    """
+    arr = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"orientation is not finite: {arr.tolist()}")
+    norm = float(np.linalg.norm(arr))
+    if norm == 0.0 and zero_is_identity:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    if norm < 1e-6:
+        raise ValueError("orientation quaternion has zero norm")
+    return arr / norm
+
+
+def pose(position, orientation) -> Pose:
+    return Pose(position=point(position), orientation=quaternion(orientation))
+
+
+def pose_to_numpy(p: Pose, zero_is_identity: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), orientation (x, y, z, w)); raises ValueError when not finite."""
+    pos = xyz_to_numpy(p.position)
+    if not np.all(np.isfinite(pos)):
+        raise ValueError(f"position is not finite: {pos.tolist()}")
+    return pos, quaternion_to_numpy(p.orientation, zero_is_identity)
+
+
+def twist(lin_vel, ang_vel) -> Twist:
+    return Twist(linear=vector3(lin_vel), angular=vector3(ang_vel))
+
+
+def twist_to_numpy(t: Twist) -> tuple[np.ndarray, np.ndarray]:
+    """(linear (3,), angular (3,)) as given; the caller checks finiteness and limits."""
+    return xyz_to_numpy(t.linear), xyz_to_numpy(t.angular)
+
+
+# -------------------------------------------------------------------------------------------------- rotations
+def quat_to_matrix(q) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = np.asarray(q, dtype=np.float64).reshape(4)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def yaw_quaternion(yaw: float) -> np.ndarray:
+    return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
+
+
+def quat_angle(q1, q2) -> float:
+    """Geodesic angle (rad) between two orientations."""
+    d = abs(float(np.dot(np.asarray(q1, dtype=np.float64), np.asarray(q2, dtype=np.float64))))
+    return 2.0 * math.acos(min(1.0, d))
+
+
+def quat_yaw(q) -> float:
+    """Yaw (rad) of the object's x axis projected on the table plane."""
+    r = quat_to_matrix(q)
+    return math.atan2(r[1, 0], r[0, 0])
+
+
+def is_toppled(q) -> bool:
+    """The object's up axis is tilted more than TOPPLE_ANGLE from the table's up axis."""
+    return bool(quat_to_matrix(q)[2, 2] < math.cos(TOPPLE_ANGLE))

@@ -1,0 +1,31 @@
+"""Loading the Predictor inside a node: once, at start, with explicit torch threads (Predictor.load warms up)."""
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from rclpy.node import Node
+
+if TYPE_CHECKING:  # torch is imported only when a node actually loads a model
+    from ..predictor import Predictor
+
+
+class ModelLoadError(RuntimeError):
+    """The checkpoint cannot be used; the node must not start."""
+
+
+def load_predictor(node: Node, model_path: str, device: str, num_threads: int) -> "Predictor":
+    """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads) and its warm-up
+    roll-outs done before the first request. Raises ModelLoadError with the reason."""
+    from ..predictor import Predictor
+
+    t0 = time.monotonic()
+    where = model_path or "the shipped default model"
+    try:
+        # Explicit threads: torch would otherwise start one per core in every node and oversubscribe the machine.
+        predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)))
+    except Exception as exc:  # noqa: BLE001 - missing, corrupt or incompatible: the node refuses to start
+        raise ModelLoadError(f"cannot load model from {where}: {exc}") from exc
+    node.get_logger().info(f"model {predictor.model_id} loaded from {predictor.path} on {device} "
+                           f"({num_threads} torch threads) in {time.monotonic() - t0:.2f} s")
+    return predictor

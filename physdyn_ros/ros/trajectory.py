@@ -1,0 +1,124 @@
+"""Predicted trajectories -> physdyn_ros/PredictedTrajectory, nav_msgs/Path and visualization_msgs/MarkerArray.
+
+`trajectory_to_msg` takes any object with the attributes of physdyn_ros.predictor.Trajectory (dt, positions,
+orientations, lin_vels, ang_vels, topple_prob), so this module never imports torch.
+"""
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped, Vector3
+from nav_msgs.msg import Path
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..msg import ObjectState, PredictedTrajectory
+from .convert import (duration_from_sec, duration_to_sec, is_toppled, ns_to_time, point, pose, pose_to_numpy,
+                      time_to_ns, twist)
+
+#: Marker namespaces; ids inside them are stable (0 = the path, k = the cube at step k).
+PATH_NS = "predicted_path"
+BOX_NS = "predicted_pose"
+
+
+class TrajectoryLike(Protocol):
+    dt: float
+    positions: np.ndarray  # (H+1, 3)
+    orientations: np.ndarray  # (H+1, 4) x, y, z, w
+    lin_vels: np.ndarray  # (H+1, 3)
+    ang_vels: np.ndarray  # (H+1, 3)
+    topple_prob: np.ndarray  # (H+1,)
+
+
+def stamp_at(stamp: Time, k: int, dt: float) -> Time:
+    return ns_to_time(time_to_ns(stamp) + int(round(k * dt * 1e9)))
+
+
+def object_state(frame_id: str, stamp: Time, object_id: str, position, orientation, lin_vel, ang_vel,
+                 topple_probability: float | None = None) -> ObjectState:
+    """An ObjectState; `toppled` is computed from the orientation, topple_probability defaults to 0 or 1."""
+    toppled = is_toppled(orientation)
+    prob = float(toppled) if topple_probability is None else float(topple_probability)
+    return ObjectState(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
+                       pose=pose(position, orientation), twist=twist(lin_vel, ang_vel), toppled=toppled,
+                       topple_probability=prob)
+
+
+def trajectory_to_msg(traj: TrajectoryLike, frame_id: str, stamp: Time, object_id: str, model_id: str,
+                      steps_in: int = 0) -> PredictedTrajectory:
+    """states[k] is stamped stamp + k * dt; topple_probability is the highest per-step probability."""
+    prob = np.asarray(traj.topple_prob, dtype=np.float64).reshape(-1)
+    states = [object_state(frame_id, stamp_at(stamp, k, traj.dt), object_id, traj.positions[k],
+                           traj.orientations[k], traj.lin_vels[k], traj.ang_vels[k], prob[k])
+              for k in range(len(traj.positions))]
+    return PredictedTrajectory(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
+                               model_id=model_id, time_step=duration_from_sec(traj.dt), steps_in=int(steps_in),
+                               states=states, topple_probability=float(prob.max()) if prob.size else 0.0)
+
+
+def msg_to_path(msg: PredictedTrajectory) -> Path:
+    """One PoseStamped per predicted state, each stamped with its own future instant."""
+    return Path(header=msg.header,
+                poses=[PoseStamped(header=s.header, pose=s.pose) for s in msg.states])
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _quat_conj(q: np.ndarray) -> np.ndarray:
+    return np.array([-q[0], -q[1], -q[2], q[3]])
+
+
+def trajectory_markers(msg: PredictedTrajectory, half_extents=None, heading: float = 0.0,
+                       box_every: int = 10) -> MarkerArray:
+    """DELETEALL, then a LINE_STRIP through the predicted centres (ns PATH_NS, id 0), then CUBE markers with the
+    object's half extents every `box_every` steps and at the last step (ns BOX_NS, id = step index).
+
+    half_extents are those of the bounding box in the object's canonical frame, whose yaw at states[0] is
+    `heading` (ShapeFeature.heading); each cube follows the object's rotation since states[0]. No cubes when
+    half_extents is None.
+    """
+    header = msg.header
+    clear = Marker(header=header, action=Marker.DELETEALL)
+    strip = Marker(header=header, ns=PATH_NS, id=0, type=Marker.LINE_STRIP, action=Marker.ADD,
+                   scale=Vector3(x=0.005), color=ColorRGBA(r=0.1, g=0.8, b=0.2, a=1.0),
+                   points=[s.pose.position for s in msg.states])
+    strip.pose.orientation.w = 1.0
+    markers = [clear, strip]
+    if half_extents is not None and msg.states:
+        size = 2.0 * np.asarray(half_extents, dtype=np.float64).reshape(3)
+        _, q0 = pose_to_numpy(msg.states[0].pose, zero_is_identity=True)
+        box_in_body = _quat_mul(_quat_conj(q0), np.array([0.0, 0.0, np.sin(heading / 2), np.cos(heading / 2)]))
+        last = len(msg.states) - 1
+        steps = sorted(set(range(0, last + 1, max(1, int(box_every)))) | {last})
+        for k in steps:
+            s = msg.states[k]
+            pos, q = pose_to_numpy(s.pose, zero_is_identity=True)
+            p = float(np.clip(s.topple_probability, 0.0, 1.0))
+            cube = Marker(header=header, ns=BOX_NS, id=k, type=Marker.CUBE, action=Marker.ADD,
+                          scale=Vector3(x=size[0], y=size[1], z=size[2]),
+                          color=ColorRGBA(r=0.2 + 0.8 * p, g=0.4 * (1 - p), b=1.0 - p, a=0.35 if k < last else 0.7))
+            cube.pose.position = point(pos)
+            qb = _quat_mul(q, box_in_body)
+            cube.pose.orientation.x, cube.pose.orientation.y, cube.pose.orientation.z, cube.pose.orientation.w = (
+                float(c) for c in qb / np.linalg.norm(qb))
+            markers.append(cube)
+    return MarkerArray(markers=markers)
+
+
+def msg_to_arrays(msg: PredictedTrajectory) -> dict[str, np.ndarray]:
+    """positions (N, 3), orientations (N, 4), lin_vels, ang_vels, topple_prob (N,), dt: back to numpy."""
+    pos = np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in msg.states]).reshape(-1, 3)
+    quat = np.array([[s.pose.orientation.x, s.pose.orientation.y, s.pose.orientation.z, s.pose.orientation.w]
+                     for s in msg.states]).reshape(-1, 4)
+    lin = np.array([[s.twist.linear.x, s.twist.linear.y, s.twist.linear.z] for s in msg.states]).reshape(-1, 3)
+    ang = np.array([[s.twist.angular.x, s.twist.angular.y, s.twist.angular.z] for s in msg.states]).reshape(-1, 3)
+    prob = np.array([s.topple_probability for s in msg.states], dtype=np.float64)
+    return {"positions": pos, "orientations": quat, "lin_vels": lin, "ang_vels": ang, "topple_prob": prob,
+            "dt": np.float64(duration_to_sec(msg.time_step))}

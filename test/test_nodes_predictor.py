@@ -1,0 +1,246 @@
+"""The predictor node over DDS: topic predictions, the service, and every bad input it must refuse cleanly."""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import Path
+from rclpy.parameter import Parameter
+from visualization_msgs.msg import Marker, MarkerArray
+
+from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
+from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS, PredictorNode
+from physdyn_ros.ros.cloud import xyz_to_cloud
+from physdyn_ros.ros.convert import ns_to_time, point, time_to_ns, vector3
+from physdyn_ros.ros.trajectory import object_state
+from physdyn_ros.srv import PredictTrajectory
+from test_nodes_support import Spinner, call, tiny_model, wait_for  # noqa: F401 - fixture
+
+T0 = 1_000 * 10**9  # stamps of the scenario, ns
+RNG = np.random.default_rng(5)
+CLOUD = (RNG.uniform(-1, 1, (600, 3)) * (0.05, 0.03, 0.04) + (0.2, 0.1, 0.04)).astype(np.float32)
+
+
+class Client:
+    """Publishes the predictor's inputs and records its outputs."""
+
+    def __init__(self, rclpy):
+        self.node = rclpy.create_node("predictor_client")
+        self.features = self.node.create_publisher(ShapeFeature, "shape_feature", LATCHED)
+        self.states = self.node.create_publisher(ObjectState, "object_state", STATE_QOS)
+        self.observed = self.node.create_publisher(ObjectState, "observed_state", STATE_QOS)
+        self.twists = self.node.create_publisher(TwistStamped, "initial_twist", 10)
+        self.trajs: list[PredictedTrajectory] = []
+        self.paths: list[Path] = []
+        self.markers: list[MarkerArray] = []
+        self.node.create_subscription(PredictedTrajectory, "predicted_trajectory", self.trajs.append, LATCHED)
+        self.node.create_subscription(Path, "predicted_path", self.paths.append, LATCHED)
+        self.node.create_subscription(MarkerArray, "predicted_markers", self.markers.append, LATCHED)
+        self.srv = self.node.create_client(PredictTrajectory, "predict_trajectory")
+
+
+def feature_msg(pred, stamp_ns: int = T0, object_id: str = "box", frame: str = "world") -> ShapeFeature:
+    """The feature the perception node would publish for CLOUD (same encoder, same fields)."""
+    code = pred.encode(CLOUD)
+    return ShapeFeature(object_id=object_id, model_id=pred.model_id, feature=code.feature.tolist(),
+                        heading=code.heading, centroid=point(code.centroid), half_extents=vector3(code.half_extents),
+                        num_points=code.num_points, header=_header(stamp_ns, frame))
+
+
+def _header(stamp_ns: int, frame: str = "world"):
+    from std_msgs.msg import Header
+
+    return Header(frame_id=frame, stamp=ns_to_time(stamp_ns))
+
+
+def state_msg(stamp_ns: int, pos=(0.2, 0.1, 0.04), yaw=0.0, object_id="box") -> ObjectState:
+    return object_state("world", ns_to_time(stamp_ns), object_id, pos, [0, 0, math.sin(yaw / 2), math.cos(yaw / 2)],
+                        [0.0] * 3, [0.0] * 3)
+
+
+def twist_msg(stamp_ns: int = T0, v=(0.4, 0.0, 0.0), w=(0.0, 0.0, 1.0), frame="world") -> TwistStamped:
+    msg = TwistStamped(header=_header(stamp_ns, frame))
+    msg.twist.linear, msg.twist.angular = vector3(v), vector3(w)
+    return msg
+
+
+@pytest.fixture
+def predictor(rclpy_init, tiny_model):
+    def make(**params):
+        return PredictorNode(parameter_overrides=[Parameter("model_path", value=str(tiny_model))]
+                             + [Parameter(k, value=v) for k, v in params.items()])
+    return make
+
+
+def send(client: Client, node: PredictorNode, msg: TwistStamped, expect_prediction: bool) -> None:
+    before = (node.predictions, node.rejected)
+    client.twists.publish(msg)
+    assert wait_for(lambda: (node.predictions, node.rejected) != before, 10), "the twist was never handled"
+    assert (node.predictions > before[0]) == expect_prediction, node.last_error
+
+
+def test_twist_gives_trajectory_path_and_markers(rclpy_init, predictor):
+    node = predictor(horizon=45)
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        send(c, node, twist_msg(), expect_prediction=False)  # before any feature
+        assert "no shape feature received yet" in node.last_error
+        c.features.publish(feature_msg(node.predictor, T0 - 10**9))
+        c.states.publish(state_msg(T0 - 10**8, pos=(0.1, 0.2, 0.04)))  # the object at rest before the push
+        c.states.publish(state_msg(T0, pos=(0.2, 0.1, 0.04), yaw=0.3))  # the state at the push instant
+        assert wait_for(lambda: node._features and node._states.get("box") and len(node._states["box"]) == 2)
+        send(c, node, twist_msg(), expect_prediction=True)
+        assert wait_for(lambda: c.trajs and c.paths and c.markers, 10)
+    traj = c.trajs[-1]
+    assert traj.header.frame_id == "world" and time_to_ns(traj.header.stamp) == T0
+    assert traj.object_id == "box" and traj.model_id == node.model_id and len(traj.states) == 46
+    s0 = traj.states[0]
+    assert (s0.pose.position.x, s0.pose.position.y) == pytest.approx((0.2, 0.1))  # pose at the twist's stamp
+    assert 2 * math.atan2(s0.pose.orientation.z, s0.pose.orientation.w) == pytest.approx(0.3)
+    assert s0.twist.linear.x == pytest.approx(0.4) and s0.twist.angular.z == pytest.approx(1.0)
+    assert time_to_ns(traj.states[15].header.stamp) - T0 == pytest.approx(10**9, abs=2)
+    assert len(c.paths[-1].poses) == 46 and c.paths[-1].poses[45].pose == traj.states[45].pose
+    markers = c.markers[-1].markers
+    assert markers[0].action == Marker.DELETEALL and markers[1].type == Marker.LINE_STRIP
+    assert [m.id for m in markers[2:]] == [0, 10, 20, 30, 40, 45]
+
+
+@pytest.mark.parametrize("case, reason", [
+    ("nan", "velocity is not finite"),
+    ("absurd_v", "exceeds max_linear_speed"),
+    ("absurd_w", "exceeds max_angular_speed"),
+    ("frame", "initial_twist frame_id 'camera' is not the table frame 'world'"),
+    ("stale", "is stale: 12.00 s older than the push"),
+    ("other_model", "comes from model 'other-model'"),
+    ("no_state", "no object_state of 'box' at or before the push"),
+    ("old_state", "latest object_state of 'box' is 3.00 s older than the push"),
+])
+def test_bad_twists_are_refused_with_the_reason(rclpy_init, predictor, case, reason):
+    node = predictor(state_wait=0.05)
+    c = Client(rclpy_init)
+    feature = feature_msg(node.predictor, T0 - 12 * 10**9 if case == "stale" else T0 - 10**9)
+    if case == "other_model":
+        feature.model_id = "other-model"
+    twist = {"nan": twist_msg(v=(math.nan, 0, 0)), "absurd_v": twist_msg(v=(50.0, 0, 0)),
+             "absurd_w": twist_msg(w=(0, 0, 500.0)), "frame": twist_msg(frame="camera")}.get(case, twist_msg())
+    with Spinner(node, c.node):
+        c.features.publish(feature)
+        if case != "no_state":
+            c.states.publish(state_msg(T0 - 3 * 10**9 if case == "old_state" else T0))
+        assert wait_for(lambda: node._features and (case == "no_state" or node._states))
+        send(c, node, twist, expect_prediction=False)
+        assert reason in node.last_error, node.last_error
+        # the node is still serving: a good push right after is predicted
+        c.states.publish(state_msg(T0 + 10**9))
+        c.features.publish(feature_msg(node.predictor, T0 + 10**9))
+        assert wait_for(lambda: node._features["box"][-1].model_id == node.model_id and node._states.get("box") and
+                        time_to_ns(node._states["box"][-1].header.stamp) == T0 + 10**9)
+        send(c, node, twist_msg(T0 + 10**9), expect_prediction=True)
+
+
+def test_steps_in_refines_with_observed_states(rclpy_init, predictor):
+    node = predictor(steps_in=3, horizon=30)
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        c.features.publish(feature_msg(node.predictor))
+        c.states.publish(state_msg(T0))
+        assert wait_for(lambda: node._features and node._states)
+        send(c, node, twist_msg(), expect_prediction=True)
+        dt = int(1e9 / 15)
+        observed = [state_msg(T0 + k * dt, pos=(0.2 + 0.02 * k, 0.1, 0.04)) for k in (1, 2, 3)]
+        for s in observed:
+            c.observed.publish(s)
+        assert wait_for(lambda: any(t.steps_in == 3 for t in c.trajs), 10), node.last_error
+    refined = next(t for t in c.trajs if t.steps_in == 3)
+    assert time_to_ns(refined.header.stamp) == T0 and len(refined.states) == 31
+    # observed frames keep their observed poses
+    assert [s.pose.position.x for s in refined.states[1:4]] == pytest.approx([0.22, 0.24, 0.26])
+
+
+def request(**kw) -> PredictTrajectory.Request:
+    req = PredictTrajectory.Request()
+    req.header.frame_id = kw.pop("frame", "world")
+    req.object_id = kw.pop("object_id", "")
+    req.horizon = kw.pop("horizon", 0)
+    req.initial_twist.linear = vector3(kw.pop("v", (0.5, 0.0, 0.0)))
+    req.initial_twist.angular = vector3(kw.pop("w", (0.0, 0.0, 0.5)))
+    if "cloud" in kw:
+        req.cloud = kw.pop("cloud")
+    if "orientation" in kw:
+        q = kw.pop("orientation")
+        req.initial_pose.orientation.x, req.initial_pose.orientation.y = q[0], q[1]
+        req.initial_pose.orientation.z, req.initial_pose.orientation.w = q[2], q[3]
+    req.initial_pose.position = point(kw.pop("position", (0.2, 0.1, 0.04)))
+    assert not kw
+    return req
+
+
+def no_xyz():
+    cloud = xyz_to_cloud(CLOUD, "world")
+    cloud.fields[2].name = "intensity"
+    return cloud
+
+
+def test_service_answers_good_requests_and_refuses_bad_ones(rclpy_init, predictor):
+    node = predictor()
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        res = call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=30))
+        assert res.success, res.message
+        assert len(res.trajectory.states) == 31 and len(res.path.poses) == 31
+        assert res.trajectory.object_id == "cloud" and res.trajectory.model_id == node.model_id
+        assert res.trajectory.states[0].pose.position.x == pytest.approx(0.2)
+        assert res.trajectory.states[0].pose.orientation.w == pytest.approx(1.0)  # all-zero quaternion = identity
+        assert res.topple_probability == pytest.approx(res.trajectory.topple_probability)
+        # by object_id, once the feature arrived; horizon 0 = the node's default (60)
+        c.features.publish(feature_msg(node.predictor, object_id="mug"))
+        assert wait_for(lambda: "mug" in node._features)
+        res = call(c.srv, request(object_id="mug"))
+        assert res.success and len(res.trajectory.states) == 61 and res.trajectory.object_id == "mug"
+        bad = {
+            "request header frame_id 'map'": request(frame="map", object_id="mug"),
+            "horizon 151 exceeds the model's max_horizon 150": request(object_id="mug", horizon=151),
+            "velocity is not finite": request(object_id="mug", v=(0, math.inf, 0)),
+            "exceeds max_linear_speed": request(object_id="mug", v=(30.0, 0, 0)),
+            "no shape feature received for object 'cup' (known objects: mug)": request(object_id="cup"),
+            "cloud: cloud has no z field": request(cloud=no_xyz()),
+            "cloud has 0 finite points": request(cloud=xyz_to_cloud(np.full((9, 3), np.nan), "world")),
+            "cloud frame_id 'camera' is not the table frame": request(cloud=xyz_to_cloud(CLOUD, "camera")),
+            "initial_pose: orientation is not finite": request(object_id="mug", orientation=(0, 0, math.nan, 1)),
+        }
+        for reason, req in bad.items():
+            res = call(c.srv, req)
+            assert not res.success and reason in res.message, (reason, res.message)
+        assert call(c.srv, request(object_id="mug", horizon=5)).success  # still serving
+
+
+def test_observed_states_in_a_service_request(rclpy_init, predictor):
+    node = predictor()
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        req = request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=10)
+        req.observed = [state_msg(T0 + k, pos=(0.2 + 0.01 * k, 0.1, 0.04)) for k in (1, 2)]
+        res = call(c.srv, req)
+        assert res.success and res.trajectory.steps_in == 2
+        assert [s.pose.position.x for s in res.trajectory.states[1:3]] == pytest.approx([0.21, 0.22])
+        req.observed[1].header.frame_id = "odom"
+        res = call(c.srv, req)
+        assert not res.success and "observed state frame_id 'odom'" in res.message
+
+
+@pytest.mark.parametrize("content, reason", [
+    (None, "does not exist"),
+    (b"not a checkpoint at all", "model.pt"),  # the checkpoint loader's reason names the file
+])
+def test_unloadable_model_stops_the_node(tmp_path, content, reason):
+    path = tmp_path / "model.pt"
+    if content is not None:
+        path.write_bytes(content)
+    run = subprocess.run([sys.executable, "-m", "physdyn_ros.nodes.predictor_node", "--ros-args",
+                          "-p", f"model_path:={path}"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert "cannot start: cannot load model from" in run.stderr and reason in run.stderr, run.stderr[-2000:]

@@ -1,0 +1,161 @@
+"""`physdyn up`, the launch file and the params file agree; the launcher and the demo work as processes."""
+from __future__ import annotations
+
+import ast
+import json
+import os
+import signal
+import subprocess
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import yaml
+from rclpy.parameter import Parameter
+
+from conftest import PYTHON, ROOT
+from physdyn_ros.launcher import CONFIG_NAME, NODES, node_command
+from test_nodes_support import tiny_model  # noqa: F401 - fixture
+
+LAUNCH = ROOT / "launch" / "physdyn.launch.py"
+CONFIG = ROOT / "config" / CONFIG_NAME
+PHYSDYN = str(Path(PYTHON).parent / "physdyn")
+
+
+def _value(node: ast.AST, consts: dict[str, ast.AST]):
+    """A literal, or what a name / LaunchConfiguration / os.path.join call stands for (as a tuple of parts)."""
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, ast.Name) and node.id in consts:
+        return _value(consts[node.id], consts)
+    if isinstance(node, ast.Call):
+        fn = ast.unparse(node.func)
+        return (fn,) + tuple(_value(a, consts) for a in node.args)
+    if isinstance(node, ast.List):
+        return [_value(e, consts) for e in node.elts]
+    return ast.unparse(node)
+
+
+def launch_nodes() -> tuple[list[dict], dict[str, object]]:
+    tree = ast.parse(LAUNCH.read_text())
+    consts = {t.id: n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
+              for t in n.targets if isinstance(t, ast.Name)}
+    nodes, args = [], {}
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call)):
+        kw = {k.arg: _value(k.value, consts) for k in call.keywords}
+        name = ast.unparse(call.func)
+        if name == "Node":
+            nodes.append(kw)
+        elif name == "DeclareLaunchArgument":
+            args[_value(call.args[0], consts)] = kw.get("default_value")
+    return nodes, args
+
+
+def test_launch_file_starts_what_the_launcher_starts():
+    nodes, args = launch_nodes()
+    assert [(n["name"], n["executable"]) for n in nodes] == list(NODES)
+    assert {n["package"] for n in nodes} == {"physdyn_ros"}
+    # every node gets the same params file, whose default is the installed config/suite.yaml
+    assert all(n["parameters"] == [("LaunchConfiguration", "params_file")] for n in nodes)
+    assert args["params_file"] == ("os.path.join", ("get_package_share_directory", "physdyn_ros"), "config",
+                                   CONFIG_NAME)
+    cmake = (ROOT / "CMakeLists.txt").read_text()
+    for _, exe in NODES:
+        # ros2 run / launch find lib/physdyn_ros/<exe>; it runs the module the launcher runs
+        script = ROOT / "scripts" / exe
+        assert os.access(script, os.X_OK) and f"scripts/{exe}" in cmake
+        assert f"from physdyn_ros.nodes.{exe} import main" in script.read_text()
+        assert node_command(exe, CONFIG)[1:3] == ["-m", f"physdyn_ros.nodes.{exe}"]
+
+
+def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
+    """Every parameter in config/suite.yaml exists with the right type (rclpy ignores unknown ones silently)."""
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.nodes.predictor_node import PredictorNode
+    from physdyn_ros.nodes.sim_node import SimNode
+
+    config = yaml.safe_load(CONFIG.read_text())
+    assert set(config) == {"/**"} | {f"/{n}" for n, _ in NODES}
+    shared = config["/**"]["ros__parameters"]
+    for cls, name in ((SimNode, "sim"), (PerceptionNode, "perception"), (PredictorNode, "predictor")):
+        node = cls(cli_args=["--ros-args", "--params-file", str(CONFIG)],
+                   parameter_overrides=[Parameter("model_path", value=str(tiny_model))]
+                   if name != "sim" else [])
+        try:
+            assert node.get_name() == name
+            own = config[f"/{name}"]["ros__parameters"]
+            unknown = sorted(k for k in own if not node.has_parameter(k))
+            assert not unknown, f"{name}: parameters in {CONFIG.name} that the node does not declare: {unknown}"
+            for key, value in own.items():
+                assert node.get_parameter(key).value == value, (name, key)
+            if name != "sim":
+                assert node.has_parameter("model_path")
+            assert node.get_parameter("table_frame").value == shared["table_frame"]
+        finally:
+            node.destroy_node()
+
+
+def _leftovers(marker: str) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if marker.encode() in (d / "cmdline").read_bytes():
+                    pids.append(int(d.name))
+            except OSError:
+                pass
+    return pids
+
+
+def test_up_starts_the_suite_and_stops_on_ctrl_c(tiny_model):
+    marker = f"leak_{uuid.uuid4().hex[:8]}"
+    proc = subprocess.Popen([PHYSDYN, "up", "--model", str(tiny_model), "--real-time-factor", "0",
+                             "--param", f"sim:object_id:={marker}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "all nodes ready" in line:
+                break
+        assert any("all nodes ready" in ln for ln in lines), "".join(lines)[-3000:]
+        assert any(ln.startswith("[predictor]") and "ready:" in ln for ln in lines)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, out[-3000:]
+    assert not _leftovers(marker), "node processes survived the launcher"
+
+
+def test_up_fails_when_a_node_cannot_start(tmp_path):
+    marker = f"leak_{uuid.uuid4().hex[:8]}"
+    run = subprocess.run([PHYSDYN, "up", "--model", str(tmp_path / "missing.pt"), "--param",
+                          f"sim:object_id:={marker}"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert "exited with code 1 during start-up" in run.stderr, run.stdout[-2000:] + run.stderr[-2000:]
+    assert "cannot load model from" in run.stdout  # the node's own reason, forwarded
+    time.sleep(0.5)
+    assert not _leftovers(marker), "the other nodes were not stopped"
+
+
+@pytest.mark.slow
+def test_demo_short_run(tmp_path, tiny_model):
+    out = tmp_path / "demo"
+    run = subprocess.run([PHYSDYN, "demo", "--pushes", "2", "--model", str(tiny_model), "--output", str(out),
+                          "--horizon", "30"], capture_output=True, text=True, timeout=240)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "mean final error over 2 pushes" in run.stdout
+    assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    results = json.loads((out / "results.json").read_text())
+    pushes = results["pushes"]
+    assert len(pushes) == 2 and pushes[1]["category"] == "pybullet_data"  # an object the model never saw
+    for p in pushes:
+        assert len(p["true_xy"]) == 31 and len(p["predicted_xy"]) == 31
+        assert p["position_error_cm"] >= 0 and p["rotation_error_deg"] >= 0
+    assert {"sim.log", "perception.log", "predictor.log"} <= {f.name for f in (out / "logs").iterdir()}
