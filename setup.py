@@ -3,7 +3,7 @@ from glob import glob
 
 from setuptools import find_packages, setup
 
-NODES = ["perception", "predictor", "sim"]
+NODES = ["perception", "predictor", "sim", "recorder"]
 
 setup(
     name="physdyn_ros",

@@ -41,7 +41,7 @@ def test_colcon_build_in_a_workspace(tmp_path):
     prefix = ws / "install" / "physdyn_ros"
     site = prefix / "lib" / "python3.11" / "site-packages"
     # ros2 run finds executables here; launch and config files are installed to share/
-    for exe in ("perception_node", "predictor_node", "sim_node", "physdyn"):
+    for exe in ("perception_node", "predictor_node", "sim_node", "recorder_node", "physdyn"):
         assert os.access(prefix / "lib" / "physdyn_ros" / exe, os.X_OK), exe
     assert (prefix / "share" / "physdyn_ros" / "package.xml").exists()
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "physdyn_ros").exists()

@@ -1,0 +1,525 @@
+"""Pushes recorded in a bag: the observed object states, the push starts, the object's cloud, the predictions.
+
+numpy + rosbags only (no rclpy), so reports and datasets can be made on a machine without ROS.
+
+Sources, all timed by their header stamps (the instant the data describes, not when it was recorded):
+* object states: physdyn_ros/msg/ObjectState (the sim node, world-frame twist), nav_msgs/msg/Odometry (a
+  tracker; its twist is in child_frame_id axes, as nav_msgs specifies, and is rotated into the table frame) or
+  geometry_msgs/msg/PoseStamped (a pose tracker; velocities are then finite differences of the resampled poses).
+  The pose must be the object's centre of mass (the dataset's object frame), in the table frame.
+* push starts: geometry_msgs/msg/TwistStamped on `initial_twist` (the sim node publishes the velocities right
+  after each push, stamped with frame 0). Without them a push starts where the object leaves rest
+  (speed above `onset_speed` after `rest_frames` still frames), and frame 0's velocity is estimated.
+* the object's points: sensor_msgs/msg/PointCloud2 (x, y, z float32) in the table frame; the latest cloud at or
+  before the push (else the first one during it) is moved into the object frame with the state at its stamp.
+* predictions: physdyn_ros/msg/PredictedTrajectory; a push takes the first one stamped within it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from ..conventions import DT, NUM_POINTS, TOPPLE_ANGLE
+from .types import deserialize
+
+NS = 1_000_000_000
+DT_NS = int(round(DT * NS))
+#: Rest test of the simulator (sim.SimConfig defaults; a test keeps them equal): at rest below these speeds ...
+REST_LIN_VEL = 0.01  # m/s
+REST_ANG_VEL = 0.05  # rad/s
+#: ... for this many consecutive frames.
+REST_FRAMES = 4
+
+STATE_TYPES = ("physdyn_ros/msg/ObjectState", "nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+#: Default topic of each state type, in order of preference.
+DEFAULT_STATE_TOPICS = {"object_state": STATE_TYPES[0], "odom": STATE_TYPES[1], "object_pose": STATE_TYPES[2]}
+
+
+# --------------------------------------------------------------------------------------------------- containers
+@dataclass
+class States:
+    """Observed states of the object, sorted by stamp. lin / ang are None when the source has no velocities."""
+
+    t: np.ndarray  # (N,) int64 ns
+    pos: np.ndarray  # (N, 3)
+    quat: np.ndarray  # (N, 4) x, y, z, w; consecutive samples in the same hemisphere (for interpolation)
+    lin: np.ndarray | None  # (N, 3) world frame
+    ang: np.ndarray | None  # (N, 3) world frame
+    topic: str
+    msgtype: str
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass
+class Cloud:
+    t: int  # ns
+    points: np.ndarray  # (M, 3) float64, table frame
+
+
+@dataclass
+class Prediction:
+    received: int  # bag timestamp, ns
+    t: int  # stamp of states[0], ns
+    dt: float
+    pos: np.ndarray  # (H+1, 3)
+    quat: np.ndarray  # (H+1, 4)
+    topple: np.ndarray  # (H+1,)
+    model_id: str
+    steps_in: int
+
+
+@dataclass
+class Session:
+    """Everything a bag holds about pushes."""
+
+    bag: Path
+    states: States
+    push_times: np.ndarray  # (P,) int64 ns, from initial_twist (empty when absent)
+    push_twists: np.ndarray  # (P, 6) lin, ang world frame
+    clouds: list[Cloud] = field(default_factory=list)
+    predictions: list[Prediction] = field(default_factory=list)
+    frame_id: str = ""
+
+
+@dataclass
+class Push:
+    """One push: the observed states from its start to the next push (or the end of the recording)."""
+
+    index: int
+    t0: int  # ns, frame 0
+    end: int  # ns, last instant that belongs to this push
+    twist: np.ndarray | None  # (6,) velocities right after the push, if recorded
+    cloud: Cloud | None
+    prediction: Prediction | None
+    rest: int | None = None  # ns of the first frame of rest (the object stays there until touched), None: never
+
+    @property
+    def settled(self) -> int:
+        """The last instant the push's own motion is observed: its rest frame, else its end."""
+        return self.rest if self.rest is not None else self.end
+
+
+# ------------------------------------------------------------------------------------------------------ helpers
+def _stamp(header) -> int:
+    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
+
+
+def _xyz(v) -> list[float]:
+    return [float(v.x), float(v.y), float(v.z)]
+
+
+def _q(o) -> list[float]:
+    return [float(o.x), float(o.y), float(o.z), float(o.w)]
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) x, y, z, w -> (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], -1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, dtype=np.float64) * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad) between orientations (..., 4)."""
+    d = np.abs(np.sum(np.asarray(a, float) * np.asarray(b, float), axis=-1))
+    d /= np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def tilt(quat: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the object's up axis and the table's up axis."""
+    return np.arccos(np.clip(quat_to_matrix(quat)[..., 2, 2], -1.0, 1.0))
+
+
+def yaw(quat: np.ndarray) -> np.ndarray:
+    r = quat_to_matrix(quat)
+    return np.arctan2(r[..., 1, 0], r[..., 0, 0])
+
+
+def _continuous(quat: np.ndarray) -> np.ndarray:
+    """Flip signs so consecutive quaternions lie in the same hemisphere."""
+    q = np.array(quat, dtype=np.float64)
+    for i in range(1, len(q)):
+        if np.dot(q[i], q[i - 1]) < 0:
+            q[i] = -q[i]
+    return q
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Row-wise spherical interpolation, w in [0, 1] (q0, q1 in the same hemisphere)."""
+    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+    w = np.asarray(w, float)[:, None]
+    dot = np.clip(np.sum(q0 * q1, axis=1, keepdims=True), -1.0, 1.0)
+    theta = np.arccos(dot)
+    sin = np.sin(theta)
+    small = sin[:, 0] < 1e-9
+    out = np.empty_like(q0)
+    a = np.where(small[:, None], 1 - w, np.sin((1 - w) * theta) / np.where(small[:, None], 1.0, sin))
+    b = np.where(small[:, None], w, np.sin(w * theta) / np.where(small[:, None], 1.0, sin))
+    out[:] = a * q0 + b * q1
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def rotvec_from_quat(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis * angle) of quaternions (..., 4), angle in [0, pi]."""
+    q = np.asarray(q, dtype=np.float64)
+    q = np.where(q[..., 3:4] < 0, -q, q)
+    v = q[..., :3]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, q[..., 3])
+    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
+    return v * scale[..., None]
+
+
+# ------------------------------------------------------------------------------------------------- the bag
+def _find(conns: list, name: str | None, types: tuple[str, ...]) -> list:
+    """Connections of topic `name` (exact, or a unique namespaced match of its last part) with one of `types`."""
+    if name is None:
+        return []
+    full = name if name.startswith("/") else "/" + name
+    hits = [c for c in conns if c.topic == full]
+    if not hits and not name.startswith("/"):
+        cands = {c.topic for c in conns if c.topic.rsplit("/", 1)[-1] == name}
+        if len(cands) > 1:
+            raise ValueError(f"topic {name!r} is ambiguous in the bag ({sorted(cands)}); give the full name")
+        hits = [c for c in conns if c.topic in cands]
+    bad = {c.msgtype for c in hits if c.msgtype not in types}
+    if bad:
+        raise ValueError(f"topic {hits[0].topic} has type {sorted(bad)}, expected one of {list(types)}")
+    return hits
+
+
+def load_session(bag: str | Path, state_topic: str | None = None, twist_topic: str | None = "initial_twist",
+                 cloud_topic: str | None = "cloud", prediction_topic: str | None = "predicted_trajectory",
+                 object_id: str | None = None) -> Session:
+    """Read the pushes' raw material from a bag (folder or single .mcap/.db3 file). ValueError if unusable."""
+    bag = Path(bag)
+    if not bag.exists():
+        raise FileNotFoundError(f"bag {bag} not found")
+    with Reader(bag) as reader:
+        conns = list(reader.connections)
+        if state_topic is not None:
+            state = _find(conns, state_topic, STATE_TYPES)
+            if not state:
+                raise ValueError(f"{bag}: no topic {state_topic!r}; it has {sorted({c.topic for c in conns})}")
+        else:
+            state = []
+            for name in DEFAULT_STATE_TOPICS:
+                state = [c for c in _find(conns, name, STATE_TYPES) if c.msgcount]
+                if state:
+                    break
+            if not state:
+                raise ValueError(f"{bag}: no object states found (looked for {', '.join(DEFAULT_STATE_TOPICS)}); "
+                                 f"pass --state-topic (ObjectState, Odometry or PoseStamped of the object); the "
+                                 f"bag has {sorted({c.topic for c in conns})}")
+        twist = _find(conns, twist_topic, ("geometry_msgs/msg/TwistStamped",))
+        cloud = _find(conns, cloud_topic, ("sensor_msgs/msg/PointCloud2",))
+        pred = _find(conns, prediction_topic, ("physdyn_ros/msg/PredictedTrajectory",))
+        msgtype = state[0].msgtype
+        st: dict[str, list] = {"t": [], "pos": [], "quat": [], "lin": [], "ang": []}
+        push_t, push_v, clouds, preds = [], [], [], []
+        frame_id = ""
+        for conn, received, data in reader.messages(connections=state + twist + cloud + pred):
+            msg = deserialize(data, conn.msgtype)
+            if conn in state:
+                if conn.msgtype == STATE_TYPES[0]:
+                    if object_id is not None and msg.object_id != object_id:
+                        continue
+                    pose, lin, ang = msg.pose, _xyz(msg.twist.linear), _xyz(msg.twist.angular)
+                elif conn.msgtype == STATE_TYPES[1]:
+                    if object_id is not None and msg.child_frame_id != object_id:
+                        continue
+                    pose = msg.pose.pose
+                    rot = quat_to_matrix(np.array(_q(pose.orientation)))
+                    lin = (rot @ np.array(_xyz(msg.twist.twist.linear))).tolist()  # child frame -> table frame
+                    ang = (rot @ np.array(_xyz(msg.twist.twist.angular))).tolist()
+                else:
+                    pose, lin, ang = msg.pose, None, None
+                frame_id = frame_id or msg.header.frame_id
+                st["t"].append(_stamp(msg.header))
+                st["pos"].append(_xyz(pose.position))
+                st["quat"].append(_q(pose.orientation))
+                st["lin"].append(lin)
+                st["ang"].append(ang)
+            elif conn in twist:
+                push_t.append(_stamp(msg.header))
+                push_v.append(_xyz(msg.twist.linear) + _xyz(msg.twist.angular))
+            elif conn in cloud:
+                pts = cloud_xyz(msg)
+                if len(pts):
+                    clouds.append(Cloud(_stamp(msg.header), pts))
+            else:
+                preds.append(prediction_arrays(msg, received))
+    if not st["t"]:
+        raise ValueError(f"{bag}: no object states on {state[0].topic}"
+                         + (f" for object_id {object_id!r}" if object_id is not None else ""))
+    order = np.argsort(np.asarray(st["t"], dtype=np.int64), kind="stable")
+    t = np.asarray(st["t"], dtype=np.int64)[order]
+    keep = np.concatenate([[True], np.diff(t) > 0])  # duplicate stamps (e.g. a republished state): keep the first
+    idx = order[keep]
+    quat = np.asarray(st["quat"], dtype=np.float64)[idx]
+    norm = np.linalg.norm(quat, axis=1)
+    if np.any(~np.isfinite(norm)) or np.any(norm < 1e-6):
+        raise ValueError(f"{bag}: {state[0].topic} holds invalid orientations (zero or non-finite quaternions)")
+    has_vel = st["lin"][0] is not None
+    states = States(t=t[keep], pos=np.asarray(st["pos"], dtype=np.float64)[idx],
+                    quat=_continuous(quat / norm[:, None]),
+                    lin=np.asarray(st["lin"], dtype=np.float64)[idx] if has_vel else None,
+                    ang=np.asarray(st["ang"], dtype=np.float64)[idx] if has_vel else None,
+                    topic=state[0].topic, msgtype=msgtype)
+    po = np.argsort(np.asarray(push_t, dtype=np.int64), kind="stable")
+    return Session(bag=bag, states=states, push_times=np.asarray(push_t, dtype=np.int64)[po],
+                   push_twists=np.asarray(push_v, dtype=np.float64).reshape(-1, 6)[po],
+                   clouds=sorted(clouds, key=lambda c: c.t), predictions=sorted(preds, key=lambda p: p.received),
+                   frame_id=frame_id)
+
+
+_PF_FLOAT32 = 7
+
+
+def cloud_xyz(msg) -> np.ndarray:
+    """(N, 3) float64 finite x, y, z of a (rosbags) PointCloud2; fields read by name, any layout / endianness."""
+    fields = {f.name: f for f in msg.fields}
+    if not all(n in fields for n in "xyz"):
+        raise ValueError(f"cloud without x/y/z fields (has {sorted(fields)})")
+    for n in "xyz":
+        if fields[n].datatype != _PF_FLOAT32 or fields[n].count != 1:
+            raise ValueError(f"cloud field {n} is not a single float32")
+    step, row, w, h = int(msg.point_step), int(msg.row_step), int(msg.width), int(msg.height)
+    if w * h == 0:
+        return np.zeros((0, 3))
+    dtype = np.dtype({"names": list("xyz"), "formats": [(">" if msg.is_bigendian else "<") + "f4"] * 3,
+                      "offsets": [int(fields[n].offset) for n in "xyz"], "itemsize": step})
+    buf = np.asarray(msg.data, dtype=np.uint8)
+    if buf.size < row * h or row < w * step:
+        raise ValueError("cloud data is shorter than its row_step * height")
+    view = np.ndarray(shape=(h, w), dtype=dtype, buffer=buf, strides=(row, step)).reshape(-1)
+    pts = np.stack([view[n].astype(np.float64) for n in "xyz"], axis=1)
+    return pts[np.isfinite(pts).all(axis=1)]
+
+
+def prediction_arrays(msg, received: int) -> Prediction:
+    n = len(msg.states)
+    pos = np.array([_xyz(s.pose.position) for s in msg.states], dtype=np.float64).reshape(n, 3)
+    quat = np.array([_q(s.pose.orientation) for s in msg.states], dtype=np.float64).reshape(n, 4)
+    prob = np.array([float(s.topple_probability) for s in msg.states], dtype=np.float64)
+    dt = int(msg.time_step.sec) + int(msg.time_step.nanosec) / NS
+    return Prediction(received=int(received), t=_stamp(msg.header), dt=dt or DT, pos=pos, quat=quat,
+                      topple=prob, model_id=str(msg.model_id), steps_in=int(msg.steps_in))
+
+
+# ---------------------------------------------------------------------------------------------- resampling
+def sample(states: States, times: np.ndarray) -> dict[str, np.ndarray]:
+    """States at `times` (ns): linear interpolation of positions and velocities, slerp of orientations.
+
+    Returns pos, quat (w >= 0), lin, ang (NaN where the source has no velocities) and `valid` (inside the
+    recorded time range).
+    """
+    times = np.asarray(times, dtype=np.int64)
+    t = states.t
+    valid = (times >= t[0]) & (times <= t[-1])
+    i = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 1)
+    j = np.minimum(i + 1, len(t) - 1)
+    span = (t[j] - t[i]).astype(np.float64)
+    w = np.where(span > 0, (times - t[i]).astype(np.float64) / np.where(span > 0, span, 1.0), 0.0)
+    w = np.clip(w, 0.0, 1.0)
+
+    def lerp(a: np.ndarray) -> np.ndarray:
+        return a[i] + (a[j] - a[i]) * w[:, None]
+
+    quat = slerp(states.quat[i], states.quat[j], w)
+    quat = np.where(quat[:, 3:4] < 0, -quat, quat)
+    nan = np.full((len(times), 3), np.nan)
+    return {"pos": lerp(states.pos), "quat": quat,
+            "lin": lerp(states.lin) if states.lin is not None else nan,
+            "ang": lerp(states.ang) if states.ang is not None else nan.copy(), "valid": valid}
+
+
+def finite_difference_velocities(pos: np.ndarray, quat: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame linear and angular velocities of a pose sequence (central differences, one-sided at ends)."""
+    n = len(pos)
+    lin, ang = np.zeros((n, 3)), np.zeros((n, 3))
+    if n < 2:
+        return lin, ang
+    lo = np.concatenate([[0], np.arange(n - 2), [n - 2]])
+    hi = np.concatenate([[1], np.arange(2, n), [n - 1]])
+    span = (hi - lo) * dt
+    lin = (pos[hi] - pos[lo]) / span[:, None]
+    rel = quat_mul(quat[hi], quat_conj(quat[lo]))  # rotation from lo to hi, world frame
+    ang = rotvec_from_quat(rel) / span[:, None]
+    return lin, ang
+
+
+# ------------------------------------------------------------------------------------------------- pushes
+def find_pushes(session: Session, onset_speed: float = 0.05, onset_spin: float = 0.5,
+                rest_lin_vel: float = REST_LIN_VEL, rest_ang_vel: float = REST_ANG_VEL,
+                rest_frames: int = REST_FRAMES) -> list[Push]:
+    """Split the session into pushes (see the module docstring); each knows when its object came to rest."""
+    st = session.states
+    if len(session.push_times):
+        starts = [int(t) for t in session.push_times if st.t[0] <= t <= st.t[-1]]
+        twists = [session.push_twists[k] for k, t in enumerate(session.push_times) if st.t[0] <= t <= st.t[-1]]
+    else:
+        starts, twists = _onsets(st, onset_speed, onset_spin, rest_frames), None
+    pushes = []
+    for k, t0 in enumerate(starts):
+        end = starts[k + 1] - 1 if k + 1 < len(starts) else int(st.t[-1])
+        pred = next((p for p in session.predictions if t0 - DT_NS // 2 <= p.t <= end), None)
+        push = Push(index=k, t0=t0, end=end, twist=None if twists is None else np.asarray(twists[k]),
+                    cloud=_pick_cloud(session.clouds, t0, end), prediction=pred)
+        try:
+            frames = _grid(session, push, int((end - t0) // DT_NS) + 1)
+        except ValueError:
+            frames = None
+        if frames is not None:
+            r = _rest_frame(frames["lin"], frames["ang"], rest_lin_vel, rest_ang_vel, rest_frames)
+            push.rest = None if r is None else int(frames["t"][r])
+        pushes.append(push)
+    return pushes
+
+
+def _grid(session: Session, push: Push, num_frames: int) -> dict[str, np.ndarray]:
+    """The push's states at t0 + k * DT for the frames inside the push (at most num_frames)."""
+    st = session.states
+    times = push.t0 + np.round(np.arange(num_frames) * DT * NS).astype(np.int64)
+    avail = int(np.sum(times <= push.end))
+    if avail < 2:
+        raise ValueError("fewer than 2 observed frames")
+    s = sample(st, times[:avail])
+    if not s["valid"].all():
+        raise ValueError("the states do not cover the push")
+    pos, quat = s["pos"], s["quat"]
+    if st.lin is None:
+        lin, ang = finite_difference_velocities(pos, quat, DT)
+        if avail > 2:  # frame 0 is the still pose at the push: take the velocity of the first step instead
+            lin[0], ang[0] = lin[1], ang[1]
+    else:
+        lin, ang = s["lin"], s["ang"]
+    if push.twist is not None:  # exact velocities right after the push
+        lin[0], ang[0] = push.twist[:3], push.twist[3:]
+    return {"t": times[:avail], "pos": pos, "quat": quat, "lin": lin, "ang": ang}
+
+
+def _rest_frame(lin: np.ndarray, ang: np.ndarray, rest_lin_vel: float, rest_ang_vel: float,
+                rest_frames: int) -> int | None:
+    """The simulator's rest rule: first frame r of a run of rest_frames still frames (None if none)."""
+    quiet = 0
+    for k in range(len(lin)):
+        still = np.linalg.norm(lin[k]) < rest_lin_vel and np.linalg.norm(ang[k]) < rest_ang_vel
+        quiet = quiet + 1 if still else 0
+        if quiet >= rest_frames:
+            return k - quiet + 1
+    return None
+
+
+def _onsets(st: States, onset_speed: float, onset_spin: float, rest_frames: int, min_steps: int = 2,
+            min_travel: float = 0.005, min_turn: float = 0.05) -> list[int]:
+    """Push starts of a recording without initial_twist: the last still sample before the object moves.
+
+    Works on the recorded samples (any rate): a step between two samples moves if its speed exceeds
+    onset_speed or its turn rate onset_spin. A push is a run of at least min_steps moving steps that travels
+    min_travel metres or turns min_turn radians, after at least rest_frames * DT of stillness. A pose that jumps
+    in one step (an object put back by hand, a respawn, a tracker glitch) is not a push.
+    """
+    dt = np.diff(st.t).astype(np.float64) / NS
+    step = np.linalg.norm(np.diff(st.pos, axis=0), axis=1)
+    turn = quat_angle(st.quat[1:], st.quat[:-1])
+    moving = (step / dt > onset_speed) | (turn / dt > onset_spin)
+    out, still_since, k = [], int(st.t[0]), 0
+    while k < len(moving):
+        if not moving[k]:
+            k += 1
+            continue
+        end = k
+        while end < len(moving) and moving[end]:
+            end += 1
+        travel = np.linalg.norm(st.pos[end] - st.pos[k])
+        rested = st.t[k] - still_since >= rest_frames * DT_NS
+        if rested and end - k >= min_steps and (travel >= min_travel or quat_angle(st.quat[end], st.quat[k]) >= min_turn):
+            out.append(int(st.t[k]))
+        still_since, k = int(st.t[end]), end
+    return out
+
+
+def _pick_cloud(clouds: list[Cloud], t0: int, end: int) -> Cloud | None:
+    before = [c for c in clouds if c.t <= t0]
+    if before:
+        return before[-1]
+    during = [c for c in clouds if t0 < c.t <= end]
+    return during[0] if during else None
+
+
+def push_frames(session: Session, push: Push, num_frames: int, rest_lin_vel: float = REST_LIN_VEL,
+                rest_ang_vel: float = REST_ANG_VEL, rest_frames: int = REST_FRAMES) -> dict[str, np.ndarray]:
+    """The push resampled at t0 + k * DT, k < num_frames, with the dataset's rest padding and topple labels.
+
+    Raises ValueError (with the reason) when the recording does not cover the push until rest or num_frames.
+    Returns pos, quat, lin_vel, ang_vel (float32), toppled (bool), length, topple_index (int32).
+    """
+    g = _grid(session, push, num_frames)
+    pos, quat, lin, ang = g["pos"], g["quat"], g["lin"], g["ang"]
+    avail = len(pos)
+    r = _rest_frame(lin, ang, rest_lin_vel, rest_ang_vel, rest_frames)
+    if r is None:
+        if avail < num_frames:
+            raise ValueError(f"the recording of this push ends after {avail} frames while the object still moves "
+                             f"({'next push' if push.end < int(session.states.t[-1]) else 'end of the bag'}); "
+                             f"{num_frames} frames or rest are needed")
+        length = num_frames
+    else:
+        length = r + 1
+    out = {"pos": np.zeros((num_frames, 3)), "quat": np.zeros((num_frames, 4)),
+           "lin_vel": np.zeros((num_frames, 3)), "ang_vel": np.zeros((num_frames, 3))}
+    n = min(length, avail)
+    out["pos"][:n], out["quat"][:n], out["lin_vel"][:n], out["ang_vel"][:n] = pos[:n], quat[:n], lin[:n], ang[:n]
+    out["pos"][n:], out["quat"][n:] = pos[n - 1], quat[n - 1]  # rest padding: rest pose, zero velocities
+    over = tilt(out["quat"]) > TOPPLE_ANGLE
+    topple_index = int(np.argmax(over)) if over.any() else -1
+    toppled = np.zeros(num_frames, dtype=bool)
+    if topple_index >= 0:
+        toppled[topple_index:] = True
+    res = {k: v.astype(np.float32) for k, v in out.items()}
+    res.update(toppled=toppled, length=np.int32(length), topple_index=np.int32(topple_index))
+    return res
+
+
+def object_points(session: Session, push: Push, num_points: int = NUM_POINTS, seed: int = 0) -> np.ndarray:
+    """The push's cloud in the object frame (origin = centre of mass), `num_points` float32 rows.
+
+    Clouds with more points are subsampled (fixed seed), smaller ones repeat points (the shape encoder
+    max-pools, so duplicates change nothing). ValueError when the push has no cloud.
+    """
+    if push.cloud is None:
+        raise ValueError("no cloud of the object at or after the push start")
+    s = sample(session.states, np.array([push.cloud.t]))
+    if not s["valid"][0]:
+        raise ValueError("the cloud's stamp lies outside the recorded states")
+    rot = quat_to_matrix(s["quat"][0])
+    pts = (push.cloud.points - s["pos"][0]) @ rot  # world -> object frame: R^T (p - c)
+    m = len(pts)
+    rng = np.random.default_rng(seed)
+    if m > num_points:
+        pts = pts[np.sort(rng.choice(m, num_points, replace=False))]
+    elif m < num_points:
+        pts = np.concatenate([pts, pts[rng.integers(0, m, num_points - m)]])
+    return pts.astype(np.float32)
