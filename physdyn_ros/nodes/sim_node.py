@@ -144,28 +144,9 @@ class SimNode(Node):
     # ------------------------------------------------------------------------------------------------ objects
     def load_shape(self, category: str, mesh_path: str, shape_seed: int):
         """A Shape from a mesh file, a procedural category or a pybullet_data mesh; ValueError if impossible."""
-        from ..shapes import CATEGORIES, PYBULLET_DATA_CATEGORY, load_mesh, make_procedural, pybullet_data_meshes
+        from ..shapes import resolve_shape
 
-        if mesh_path:
-            return load_mesh(mesh_path)
-        if category == PYBULLET_DATA_CATEGORY:
-            specs = pybullet_data_meshes()
-            if not specs:
-                raise ValueError("no pybullet_data meshes are installed")
-            # Some meshes are not closed solids: take the next usable one, deterministically.
-            errors = []
-            for i in range(len(specs)):
-                spec = specs[(int(shape_seed) + i) % len(specs)]
-                try:
-                    return load_mesh(spec.path, name=f"{PYBULLET_DATA_CATEGORY}_{spec.name}",
-                                     category=PYBULLET_DATA_CATEGORY, up_axis=spec.up_axis, target_size=spec.size)
-                except ValueError as exc:
-                    errors.append(str(exc))
-            raise ValueError("no usable pybullet_data mesh: " + "; ".join(errors[:3]))
-        if category not in CATEGORIES:
-            raise ValueError(f"unknown category {category!r}; use one of {', '.join(CATEGORIES)}, "
-                             f"{PYBULLET_DATA_CATEGORY}, or set mesh_path")
-        return make_procedural(category, int(shape_seed))
+        return resolve_shape(category, shape_seed, mesh_path)
 
     def spawn(self, object_id: str, category: str, mesh_path: str, shape_seed: int, scale, spawn_pose,
               friction: float) -> None:

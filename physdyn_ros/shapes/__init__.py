@@ -3,7 +3,8 @@ from .core import DEFAULT_DENSITY, MassProperties, Shape, convex_hull, make_shap
     shape_from_points
 from .meshes import PYBULLET_DATA_CATEGORY, load_mesh, pybullet_data_meshes, pybullet_data_shapes
 from .procedural import CATEGORIES, generate_shapes, make_procedural, shape_seed
+from .resolve import resolve_shape
 
 __all__ = ["CATEGORIES", "DEFAULT_DENSITY", "MassProperties", "PYBULLET_DATA_CATEGORY", "Shape", "convex_hull",
            "generate_shapes", "load_mesh", "make_procedural", "make_shape", "mass_properties",
-           "pybullet_data_meshes", "pybullet_data_shapes", "sample_surface", "shape_from_points", "shape_seed"]
+           "pybullet_data_meshes", "pybullet_data_shapes", "resolve_shape", "sample_surface", "shape_from_points", "shape_seed"]

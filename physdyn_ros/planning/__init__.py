@@ -1,0 +1,19 @@
+"""Push planning and online adaptation on top of the dynamics model (numpy + the Predictor; no rclpy, no pybullet).
+
+    planner.py     PushPlanner: CEM over Predictor.rollout_batch -> the push (velocity, impulse, contact point)
+    body.py        mass, inertia and COM-height section of the object: velocity <-> impulse at a contact point
+    models.py      the DynamicsModel protocol and AnalyticSlidingModel (closed-form physics stand-in)
+    refine.py      optional gradient refinement through the learned model (torch)
+    adapt.py       OnlineAdapter: re-predict as observed states arrive ("steps in")
+    closed_loop.py plan -> push in the pybullet Simulator -> observe -> re-plan (pybullet imported lazily)
+    sim_model.py   PybulletModel: the planner driven by pybullet re-simulation (comparison baseline)
+    cli.py         `physdyn plan`
+"""
+from .adapt import OnlineAdapter, repredict
+from .body import BodyError, PushBody, body_from_box, body_from_cloud
+from .models import AnalyticSlidingModel, DynamicsModel
+from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, TableBounds, wrap_angle, yaw_of
+
+__all__ = ["AnalyticSlidingModel", "BodyError", "DynamicsModel", "Goal", "OnlineAdapter", "PlannerConfig",
+           "PlanningError", "Pose2D", "PushBody", "PushPlan", "PushPlanner", "TableBounds", "body_from_box",
+           "body_from_cloud", "repredict", "wrap_angle", "yaw_of"]

@@ -1,0 +1,520 @@
+"""Single-push planning: which initial velocity (and impulse, contact point) brings an object to a goal pose.
+
+    planner = PushPlanner(Predictor.load())                       # or any planning.models.DynamicsModel
+    plan = planner.plan(cloud, Pose2D(0, 0, 0), Goal(Pose2D(0.15, 0.05, 0.3)))
+    plan.lin_vel, plan.ang_vel, plan.impulse, plan.contact_point, plan.final_pose, plan.topple_probability
+
+Search: the cross-entropy method (CEM) over three numbers per candidate push, (vx, vy, f): the horizontal
+velocity of the COM and where the line of push passes the COM, as a fraction f in [-1, 1] of the object's
+extent across the push (planning.body). The angular velocity follows from them (one contact can only spin
+an object as much as its lever arm allows), so every candidate is a push a single contact can make. Each
+iteration rolls all candidates out with one `rollout_batch` call and keeps the elite fraction; the first
+iteration spreads candidates around the straight-line guess (direction to the goal, the Coulomb speed
+sqrt(2 mu g d)), later ones sample a Gaussian fitted to the elites. Optionally a few gradient steps through
+the learned model polish the best candidate (planning.refine). Iterations stop when the time budget would be
+exceeded by the next one (cost per rolled-out step is measured on the fly).
+
+Cost of a candidate (lower is better), from its predicted final state:
+    (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)
+    + (final speed / 0.1 m/s)^2 (a trajectory still moving at the horizon has not reached its final pose)
+    + 2 * topple probability + 1000 if the topple probability exceeds the limit or the COM leaves the table.
+
+Refusals (PlanningError, a ValueError, with the reason): non-finite or malformed poses and tolerances,
+start or goal off the table, no shape, a goal farther than a push of at most max_speed can slide
+(v^2 / (2 mu_min g)), and goals for which every push considered topples.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from ..conventions import GRAVITY
+from ..predictor import ShapeCode, Trajectory, TrajectoryBatch
+from ..shapes.core import DEFAULT_DENSITY
+from .body import BodyError, PushBody, body_from_box, body_from_cloud
+from .models import DynamicsModel
+
+__all__ = ["Goal", "PlannerConfig", "PlanningError", "Pose2D", "PushPlan", "PushPlanner", "TableBounds",
+           "wrap_angle", "yaw_of"]
+
+#: Penalty added to candidates that break a hard limit (topple probability, table edge).
+INFEASIBLE = 1000.0
+#: Final speed (m/s) that costs as much as one tolerance of position error.
+MOVING_SCALE = 0.1
+
+
+class PlanningError(ValueError):
+    """The request cannot be planned; the message says why (bad input, unreachable goal, every push topples)."""
+
+
+def wrap_angle(a: Union[float, np.ndarray]) -> Union[float, np.ndarray]:
+    """Angle(s) wrapped into [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi if isinstance(a, np.ndarray) else \
+        (float(a) + math.pi) % (2 * math.pi) - math.pi
+
+
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Yaw (rad) of the x axis projected on the table, for (..., 4) quaternions (x, y, z, w)."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def _finite(value: Any, name: str) -> float:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise PlanningError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(f):
+        raise PlanningError(f"{name} is not finite ({f})")
+    return f
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A pose on the table: x, y of the centre of mass (m, table frame) and yaw (rad) of the object."""
+
+    x: float
+    y: float
+    yaw: float
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "yaw"):
+            object.__setattr__(self, name, _finite(getattr(self, name), f"pose {name}"))
+
+    @classmethod
+    def of(cls, value: Union["Pose2D", Any], name: str = "pose") -> "Pose2D":
+        """A Pose2D from a Pose2D or three numbers (x, y, yaw)."""
+        if isinstance(value, Pose2D):
+            return value
+        try:
+            x, y, yaw = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise PlanningError(f"{name} must be (x, y, yaw), got {value!r}") from None
+        try:
+            return cls(x, y, yaw)
+        except PlanningError as exc:
+            raise PlanningError(f"{name}: {exc}") from None
+
+    @property
+    def xy(self) -> np.ndarray:
+        return np.array([self.x, self.y])
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Where the object should come to rest. yaw_tolerance >= pi means any yaw is fine."""
+
+    pose: Pose2D
+    position_tolerance: float = 0.02  # m
+    yaw_tolerance: float = math.radians(10.0)  # rad
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", Pose2D.of(self.pose, "goal pose"))
+        for name in ("position_tolerance", "yaw_tolerance"):
+            v = _finite(getattr(self, name), name)
+            if v <= 0:
+                raise PlanningError(f"{name} must be positive, got {v}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def ignores_yaw(self) -> bool:
+        return self.yaw_tolerance >= math.pi
+
+
+@dataclass(frozen=True)
+class TableBounds:
+    """Axis-aligned table top (m, table frame); the COM must stay inside."""
+
+    x_min: float = -1.0
+    x_max: float = 1.0
+    y_min: float = -1.0
+    y_max: float = 1.0
+
+    def __post_init__(self) -> None:
+        vals = [_finite(getattr(self, k), f"table {k}") for k in ("x_min", "x_max", "y_min", "y_max")]
+        if not (vals[0] < vals[1] and vals[2] < vals[3]):
+            raise PlanningError(f"table bounds must have min < max, got {vals}")
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64)
+        return ((xy[..., 0] >= self.x_min) & (xy[..., 0] <= self.x_max)
+                & (xy[..., 1] >= self.y_min) & (xy[..., 1] <= self.y_max))
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Planner parameters (docs/planning.md lists them with their measured effect)."""
+
+    max_speed: float = 1.5  # m/s, fastest initial COM speed a push may give
+    min_speed: float = 0.05  # m/s, slowest push considered
+    max_topple_probability: float = 0.2  # candidates predicted to topple more likely than this are rejected
+    time_budget: float = 0.5  # s, wall time of one plan() call (at least one batch always runs)
+    samples: int = 128  # candidates per CEM iteration
+    elite_fraction: float = 0.1  # share of candidates that shape the next iteration (at least 4)
+    max_iterations: int = 8  # CEM iterations at most (fewer when the budget runs out)
+    horizon: int = 0  # steps rolled out; 0 = long enough to stop: (max_speed / (min_friction g) + settle) / dt
+    settle_time: float = 0.6  # s added to the stopping time for the automatic horizon (wobble, spin)
+    friction: float = 0.5  # nominal Coulomb friction: the initial speed guess sqrt(2 mu g d)
+    min_friction: float = 0.35  # lowest friction expected: the reach bound v^2 / (2 mu g)
+    max_offset_fraction: float = 0.85  # how far off the COM the line of push may pass, share of the lever limit
+    table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
+    density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
+    refine_steps: int = 0  # gradient steps through the learned model after CEM (0 = off)
+    refine_lr: float = 0.05  # step size of the refinement (Adam, on normalised push parameters)
+    seed: int = 0  # candidate sampling is deterministic for a given seed
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
+                     "density", "refine_lr"):
+            v = _finite(getattr(self, name), name)
+            if v <= 0:
+                raise PlanningError(f"{name} must be positive, got {v}")
+        if self.min_speed >= self.max_speed:
+            raise PlanningError(f"min_speed {self.min_speed} must be below max_speed {self.max_speed}")
+        if not 0 <= _finite(self.max_topple_probability, "max_topple_probability") <= 1:
+            raise PlanningError(f"max_topple_probability must be in [0, 1], got {self.max_topple_probability}")
+        if not 0 < _finite(self.max_offset_fraction, "max_offset_fraction") <= 1:
+            raise PlanningError(f"max_offset_fraction must be in (0, 1], got {self.max_offset_fraction}")
+        if not 0 < _finite(self.elite_fraction, "elite_fraction") <= 1:
+            raise PlanningError(f"elite_fraction must be in (0, 1], got {self.elite_fraction}")
+        for name in ("samples", "max_iterations", "horizon", "refine_steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in (
+                    "horizon", "refine_steps") else 1):
+                raise PlanningError(f"{name} must be a {'non-negative' if name in ('horizon', 'refine_steps') else 'positive'} "
+                                    f"integer, got {v!r}")
+        if self.samples < 8:
+            raise PlanningError(f"samples must be >= 8, got {self.samples}")
+
+    def reach(self) -> float:
+        """Farthest a push of max_speed can slide at the lowest expected friction (m)."""
+        return self.max_speed ** 2 / (2.0 * self.min_friction * GRAVITY)
+
+    def auto_horizon(self, dt: float, max_horizon: int) -> int:
+        if self.horizon:
+            return int(min(self.horizon, max_horizon))
+        t = self.max_speed / (self.min_friction * GRAVITY) + self.settle_time
+        return int(min(max(math.ceil(t / dt), 5), max_horizon))
+
+
+@dataclass(frozen=True)
+class PushPlan:
+    """The chosen push and what the model predicts it does."""
+
+    lin_vel: np.ndarray  # (3,) m/s, COM velocity right after the push (world frame)
+    ang_vel: np.ndarray  # (3,) rad/s, angular velocity right after the push (world frame)
+    impulse: np.ndarray  # (3,) N s, = mass * lin_vel, horizontal
+    contact_point: np.ndarray  # (3,) m, table frame, where to apply the impulse (at COM height)
+    mass: float  # kg, the mass used for the impulse (given, or the hull / box estimate)
+    offset: float  # m, signed distance of the line of push from the COM (+: left of the push direction)
+    start: Pose2D
+    goal: Goal
+    final_pose: Pose2D  # predicted rest pose
+    final_position: np.ndarray  # (3,) predicted final COM
+    position_error: float  # m, predicted final distance to the goal
+    yaw_error: float  # rad, predicted |final yaw - goal yaw| (0 when the goal ignores yaw)
+    topple_probability: float  # predicted probability of toppling during the push
+    within_tolerance: bool  # the predicted final pose is within both tolerances
+    trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
+    planning_time: float  # s, wall time of the plan() call
+    iterations: int  # CEM iterations run
+    rollouts: int  # candidates rolled out in all
+    horizon: int  # steps per roll-out
+    body_source: str  # "hull" (from points) or "box" (shape code only): where contact point and mass came from
+    model_id: str
+    message: str
+
+    @property
+    def speed(self) -> float:
+        return float(np.linalg.norm(self.lin_vel[:2]))
+
+
+# -------------------------------------------------------------------------------------------------- planner
+class PushPlanner:
+    """Plans single pushes with a dynamics model (a Predictor or any planning.models.DynamicsModel).
+
+    Not thread-safe (the model is not): use one planner per thread, or serialise calls.
+    """
+
+    def __init__(self, model: DynamicsModel, config: PlannerConfig = PlannerConfig()) -> None:
+        self.model = model
+        self.config = config
+        self._sec_per_step: Optional[float] = None  # measured cost of one candidate-step, seconds
+
+    def warm_up(self) -> None:
+        """Pay one-off costs (open3d's import for hulls, model warm-up, timing calibration) outside a request."""
+        rng = np.random.default_rng(0)
+        cloud = rng.uniform(-1.0, 1.0, size=(256, 3)) * np.array([0.05, 0.04, 0.03]) + np.array([0.0, 0.0, 0.03])
+        self.plan(cloud, Pose2D(0.0, 0.0, 0.0), Goal(Pose2D(0.08, 0.0, 0.0), 0.05, math.pi),
+                  config=replace(self.config, time_budget=0.3, max_iterations=2, table=None,
+                                 max_topple_probability=1.0))
+
+    # ------------------------------------------------------------------------------------------ inputs
+    def _shape(self, shape: Any, cloud: Any) -> tuple[Any, Optional[np.ndarray]]:
+        """(model code, cloud or None)."""
+        if shape is None:
+            raise PlanningError("no shape: give the object's cloud (N, 3) or its shape code")
+        if isinstance(shape, ShapeCode) or (not isinstance(shape, (np.ndarray, list, tuple))
+                                            and hasattr(shape, "centroid")):
+            code = shape
+        else:
+            cloud = shape
+            try:
+                code = self.model.encode(cloud)
+            except ValueError as exc:
+                raise PlanningError(f"bad cloud: {exc}") from None
+        if cloud is not None:
+            cloud = np.asarray(cloud, dtype=np.float64)
+            if cloud.ndim != 2 or cloud.shape[1] != 3 or len(cloud) < 4 or not np.all(np.isfinite(cloud)):
+                raise PlanningError(f"cloud must be (N >= 4, 3) finite points, got shape {cloud.shape}")
+        return code, cloud
+
+    def _body(self, code: Any, cloud: Optional[np.ndarray], start: Pose2D, mass: Optional[float],
+              cfg: PlannerConfig) -> PushBody:
+        if mass is not None:
+            m = _finite(mass, "mass")
+            if m <= 0:
+                raise PlanningError(f"mass must be positive, got {m}")
+        try:
+            if cloud is not None:
+                body = body_from_cloud(cloud, cfg.density, mass)
+            else:
+                half = getattr(code, "half_extents", None)
+                if half is None:
+                    raise PlanningError("a shape code without half_extents needs the cloud for the contact point")
+                body = body_from_box(np.asarray(code.centroid), half, float(getattr(code, "heading", 0.0)),
+                                     cfg.density, mass)
+        except BodyError as exc:
+            raise PlanningError(str(exc)) from None
+        # The geometry must be the object as seen at the start pose: a cloud from elsewhere gives wrong levers.
+        gap = float(np.linalg.norm(body.com[:2] - start.xy))
+        if gap > max(2.0 * body.radius(), 0.05):
+            raise PlanningError(f"the object's points are centred {gap:.3f} m from the start pose; give the cloud "
+                                "as observed at the start pose, in the table frame")
+        return body
+
+    # --------------------------------------------------------------------------------------------- plan
+    def plan(self, shape: Any, start: Union[Pose2D, Any], goal: Union[Goal, Pose2D, Any], cloud: Any = None,
+             mass: Optional[float] = None, config: Optional[PlannerConfig] = None) -> PushPlan:
+        """Best single push from `start` to `goal` for the object `shape` (a cloud (N, 3) in the table frame,
+        as observed at `start`, or a shape code of the model; with a code, `cloud` optionally gives the
+        points for the contact geometry). `mass` (kg) scales the impulse; default: hull volume * density.
+        Raises PlanningError with the reason when no push can be planned."""
+        t0 = time.perf_counter()
+        cfg = config or self.config
+        start = Pose2D.of(start, "start pose")
+        if not isinstance(goal, Goal):
+            goal = Goal(Pose2D.of(goal, "goal pose"))
+        if cfg.table is not None:
+            for name, pose in (("start", start), ("goal", goal.pose)):
+                if not cfg.table.contains(pose.xy):
+                    t = cfg.table
+                    raise PlanningError(f"{name} ({pose.x:.3f}, {pose.y:.3f}) is off the table "
+                                        f"[{t.x_min:g}, {t.x_max:g}] x [{t.y_min:g}, {t.y_max:g}] m")
+        code, cloud = self._shape(shape, cloud)
+        body = self._body(code, cloud, start, mass, cfg)
+        horizon = cfg.auto_horizon(float(self.model.dt), int(self.model.max_horizon))
+        delta = goal.pose.xy - start.xy
+        dist = float(np.linalg.norm(delta))
+        yaw_gap = abs(wrap_angle(goal.pose.yaw - start.yaw))
+        if dist <= goal.position_tolerance and (goal.ignores_yaw or yaw_gap <= goal.yaw_tolerance):
+            return self._no_push(start, goal, body, code, horizon, t0)
+        if dist - goal.position_tolerance > cfg.reach():
+            raise PlanningError(f"goal unreachable: it is {dist:.3f} m away, but a push of at most "
+                                f"{cfg.max_speed:g} m/s slides at most {cfg.reach():.3f} m at friction "
+                                f">= {cfg.min_friction:g} (v^2 / (2 mu g)); raise max_speed or push twice")
+        search = _Search(self, code, body, start, goal, cfg, horizon, t0)
+        best = search.run()
+        return self._result(search, best, t0)
+
+    def _no_push(self, start: Pose2D, goal: Goal, body: PushBody, code: Any, horizon: int, t0: float) -> PushPlan:
+        z = float(np.asarray(code.centroid)[2])
+        pos = np.tile([start.x, start.y, z], (horizon + 1, 1))
+        q = np.tile([0.0, 0.0, 0.0, 1.0], (horizon + 1, 1))
+        zeros = np.zeros((horizon + 1, 3))
+        traj = Trajectory(float(self.model.dt), pos, q, zeros, zeros.copy(), np.zeros(horizon + 1))
+        return PushPlan(lin_vel=np.zeros(3), ang_vel=np.zeros(3), impulse=np.zeros(3), contact_point=body.com.copy(),
+                        mass=body.mass, offset=0.0, start=start, goal=goal, final_pose=start, final_position=pos[-1],
+                        position_error=float(np.linalg.norm(goal.pose.xy - start.xy)),
+                        yaw_error=0.0 if goal.ignores_yaw else abs(wrap_angle(goal.pose.yaw - start.yaw)),
+                        topple_probability=0.0, within_tolerance=True, trajectory=traj,
+                        planning_time=time.perf_counter() - t0, iterations=0, rollouts=0, horizon=horizon,
+                        body_source=body.source, model_id=str(self.model.model_id),
+                        message="already within tolerance: no push needed")
+
+    def _result(self, search: "_Search", best: "_Candidate", t0: float) -> PushPlan:
+        cfg, goal, start = search.cfg, search.goal, search.start
+        if best.topple > cfg.max_topple_probability:
+            raise PlanningError(f"every push considered is predicted to topple the object (lowest topple "
+                                f"probability {best.topple:.2f} > max_topple_probability "
+                                f"{cfg.max_topple_probability:g}); try a lower max_speed or a nearer goal")
+        if best.off_table:
+            raise PlanningError("every push considered leaves the table")
+        traj = best.trajectory
+        final = traj.positions[-1]
+        final_yaw = float(wrap_angle(start.yaw + float(yaw_of(traj.orientations[-1]))))
+        within = best.pos_err <= goal.position_tolerance and (goal.ignores_yaw or best.yaw_err <= goal.yaw_tolerance)
+        body = search.body
+        contact = body.contact_points(best.direction[None], np.array([best.offset]))[0]
+        contact[:2] += start.xy - body.com[:2]  # geometry is relative to the observed COM; the pose is the truth
+        lin = np.array([best.speed * best.direction[0], best.speed * best.direction[1], 0.0])
+        yaw_text = "" if goal.ignores_yaw else f", yaw {math.degrees(best.yaw_err):.1f} deg"
+        msg = (f"{'within' if within else 'OUTSIDE'} tolerance: predicted to stop {100 * best.pos_err:.1f} cm"
+               f"{yaw_text} from the goal (topple probability {best.topple:.2f}); {search.iterations} CEM "
+               f"iterations, {search.rollouts} roll-outs in {1e3 * (time.perf_counter() - t0):.0f} ms")
+        return PushPlan(lin_vel=lin, ang_vel=best.ang_vel.copy(), impulse=body.mass * lin, contact_point=contact,
+                        mass=body.mass, offset=float(best.offset), start=start, goal=goal,
+                        final_pose=Pose2D(float(final[0]), float(final[1]), final_yaw), final_position=final.copy(),
+                        position_error=float(best.pos_err), yaw_error=0.0 if goal.ignores_yaw else float(best.yaw_err),
+                        topple_probability=float(best.topple), within_tolerance=bool(within), trajectory=traj,
+                        planning_time=time.perf_counter() - t0, iterations=search.iterations,
+                        rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,
+                        model_id=str(self.model.model_id), message=msg)
+
+
+# ------------------------------------------------------------------------------------------------ the search
+@dataclass
+class _Candidate:
+    cost: float
+    direction: np.ndarray  # (2,)
+    speed: float
+    fraction: float
+    offset: float
+    ang_vel: np.ndarray
+    pos_err: float
+    yaw_err: float
+    topple: float
+    off_table: bool
+    trajectory: Trajectory
+
+
+class _Search:
+    """One CEM run (state shared by the iterations and the optional gradient refinement)."""
+
+    def __init__(self, planner: PushPlanner, code: Any, body: PushBody, start: Pose2D, goal: Goal,
+                 cfg: PlannerConfig, horizon: int, t0: float) -> None:
+        self.planner, self.model, self.code, self.body = planner, planner.model, code, body
+        self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
+        self.deadline = t0 + cfg.time_budget
+        self.rng = np.random.default_rng(cfg.seed)
+        self.iterations = 0
+        self.rollouts = 0
+        self.z0 = float(np.asarray(code.centroid)[2])
+        delta = goal.pose.xy - start.xy
+        self.dist = float(np.linalg.norm(delta))
+        self.heading = math.atan2(delta[1], delta[0]) if self.dist > 1e-9 else start.yaw
+        # Coulomb guess for the speed; spin and toppling change it, CEM finds the rest
+        self.speed0 = float(np.clip(math.sqrt(2 * cfg.friction * GRAVITY * max(self.dist, 1e-3)),
+                                    cfg.min_speed, cfg.max_speed))
+
+    # -- candidates --------------------------------------------------------------------------------------
+    def _first(self, n: int) -> np.ndarray:
+        """(n, 3) params (vx, vy, f): a spread around the straight-line push."""
+        ang = self.heading + self.rng.uniform(-0.7, 0.7, n)
+        speed = self.speed0 * np.exp(self.rng.uniform(np.log(0.6), np.log(2.0), n))
+        f = self.rng.uniform(-self.cfg.max_offset_fraction, self.cfg.max_offset_fraction, n)
+        params = np.stack([speed * np.cos(ang), speed * np.sin(ang), f], axis=1)
+        params[0] = [self.speed0 * math.cos(self.heading), self.speed0 * math.sin(self.heading), 0.0]
+        return params
+
+    def _project(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Clip to the feasible set: speed within limits, offset within the lever fraction."""
+        v = params[:, :2]
+        s = np.linalg.norm(v, axis=1)
+        d = np.where(s[:, None] > 1e-9, v / np.maximum(s, 1e-12)[:, None],
+                     np.array([math.cos(self.heading), math.sin(self.heading)]))
+        s = np.clip(s, self.cfg.min_speed, self.cfg.max_speed)
+        f = np.clip(params[:, 2], -self.cfg.max_offset_fraction, self.cfg.max_offset_fraction)
+        return d, s, f
+
+    def evaluate(self, params: np.ndarray) -> list[_Candidate]:
+        d, s, f = self._project(params)
+        e = self.body.offsets(d, f)
+        w = self.body.angular_velocity(s, e)
+        v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
+        p0 = np.array([self.start.x, self.start.y, self.z0])
+        t = time.perf_counter()
+        try:
+            batch = self.model.rollout_batch(self.code, v, w, horizon=self.horizon, positions=p0)
+        except ValueError as exc:  # e.g. a shape code from another model
+            raise PlanningError(f"the dynamics model refused the request: {exc}") from None
+        spent = time.perf_counter() - t
+        per_step = spent / (len(s) * self.horizon)
+        ema = self.planner._sec_per_step
+        self.planner._sec_per_step = per_step if ema is None else 0.5 * ema + 0.5 * per_step
+        self.rollouts += len(s)
+        costs, pos_err, yaw_err, topple, off = self.costs(batch)
+        return [_Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(e[i]), w[i], float(pos_err[i]),
+                           float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i]) for i in range(len(s))]
+
+    def costs(self, batch: TrajectoryBatch) -> tuple[np.ndarray, ...]:
+        g, cfg = self.goal, self.cfg
+        final = batch.positions[:, -1, :2]
+        pos_err = np.linalg.norm(final - g.pose.xy, axis=1)
+        yaw = self.start.yaw + yaw_of(batch.orientations[:, -1])
+        yaw_err = np.abs(wrap_angle(yaw - g.pose.yaw))
+        topple = batch.topple_prob.max(axis=1)
+        speed_end = np.linalg.norm(batch.lin_vels[:, -1], axis=1)
+        cost = (pos_err / g.position_tolerance) ** 2 + (speed_end / MOVING_SCALE) ** 2 + 2.0 * topple
+        if not g.ignores_yaw:
+            cost = cost + (yaw_err / g.yaw_tolerance) ** 2
+        off = np.zeros(len(cost), dtype=bool)
+        if cfg.table is not None:
+            off = ~cfg.table.contains(batch.positions[..., :2]).all(axis=1)
+        cost = cost + INFEASIBLE * ((topple > cfg.max_topple_probability) | off)
+        cost = np.where(np.isfinite(cost), cost, np.inf)  # a diverging model must never win
+        return cost, pos_err, yaw_err, topple, off
+
+    def _batch_size(self) -> int:
+        """Candidates that fit in the remaining budget (a 32-candidate probe while the cost is unknown)."""
+        n = self.cfg.samples
+        per = self.planner._sec_per_step
+        if per is None:
+            return min(n, 32)
+        left = self.deadline - time.perf_counter()
+        fit = int(0.85 * left / max(per * self.horizon, 1e-9))
+        return min(n, fit)
+
+    # -- CEM -----------------------------------------------------------------------------------------------
+    def run(self) -> _Candidate:
+        cfg = self.cfg
+        lo = np.array([-cfg.max_speed, -cfg.max_speed, -cfg.max_offset_fraction])
+        hi = -lo
+        std_floor = np.array([0.01, 0.01, 0.02])
+        best: Optional[_Candidate] = None
+        elites: list[_Candidate] = []
+        mean = std = None
+        while self.iterations < cfg.max_iterations:
+            n = self._batch_size()
+            if self.iterations > 0 and n < 8:
+                break  # the budget is spent
+            n = max(n, 8)
+            if mean is None:
+                params = self._first(n)
+            else:
+                params = np.clip(mean + std * self.rng.standard_normal((n, 3)), lo, hi)
+            cands = self.evaluate(params)
+            self.iterations += 1
+            # elitism: last iteration's elites compete again (roll-outs are deterministic: no re-evaluation)
+            pool = sorted(cands + elites, key=lambda c: c.cost)
+            k = max(4, int(round(cfg.elite_fraction * len(cands))))
+            elites = pool[:k]
+            if best is None or elites[0].cost < best.cost:
+                best = elites[0]
+            ep = np.array([[c.speed * c.direction[0], c.speed * c.direction[1], c.fraction] for c in elites])
+            new_mean, new_std = ep.mean(axis=0), ep.std(axis=0) + std_floor
+            mean = new_mean if mean is None else 0.9 * new_mean + 0.1 * mean
+            std = new_std if std is None else 0.8 * new_std + 0.2 * std
+            if best.cost < 0.05:  # far inside the tolerances: more search buys nothing
+                break
+        assert best is not None
+        if cfg.refine_steps > 0 and time.perf_counter() < self.deadline:
+            from .refine import refine_candidate
+
+            best = refine_candidate(self, best)
+        return best

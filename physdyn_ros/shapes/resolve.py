@@ -1,0 +1,31 @@
+"""One name for every shape source: a mesh file, a procedural category, or a pybullet_data test mesh."""
+from __future__ import annotations
+
+from .core import Shape
+from .meshes import PYBULLET_DATA_CATEGORY, load_mesh, pybullet_data_meshes
+from .procedural import CATEGORIES, make_procedural
+
+
+def resolve_shape(category: str, shape_seed: int = 0, mesh_path: str = "") -> Shape:
+    """The shape `mesh_path` if given, else shape number `shape_seed` of `category` (a procedural category or
+    "pybullet_data"). Raises ValueError naming the problem (unknown category, unreadable mesh)."""
+    if mesh_path:
+        return load_mesh(mesh_path)
+    if category == PYBULLET_DATA_CATEGORY:
+        specs = pybullet_data_meshes()
+        if not specs:
+            raise ValueError("no pybullet_data meshes are installed")
+        # Some meshes are not closed solids: take the next usable one, deterministically.
+        errors = []
+        for i in range(len(specs)):
+            spec = specs[(int(shape_seed) + i) % len(specs)]
+            try:
+                return load_mesh(spec.path, name=f"{PYBULLET_DATA_CATEGORY}_{spec.name}",
+                                 category=PYBULLET_DATA_CATEGORY, up_axis=spec.up_axis, target_size=spec.size)
+            except ValueError as exc:
+                errors.append(str(exc))
+        raise ValueError("no usable pybullet_data mesh: " + "; ".join(errors[:3]))
+    if category not in CATEGORIES:
+        raise ValueError(f"unknown category {category!r}; use one of {', '.join(CATEGORIES)}, "
+                         f"{PYBULLET_DATA_CATEGORY}, or a mesh file")
+    return make_procedural(category, int(shape_seed))
