@@ -192,3 +192,22 @@ def test_bad_data_and_config_give_clear_errors(tmp_path):
     with pytest.raises(CheckpointError):
         (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
         train(tiny_config(), tiny_dataset(), tmp_path / "run3", resume=str(tmp_path / "junk.pt"), progress=False)
+
+
+def test_fine_tune_starts_from_the_init_checkpoint(overfit_run, tmp_path):
+    """--init: a new run whose first weights and normalisation are the pretrained ones."""
+    init = overfit_run / "checkpoint_best.pt"
+    before = load_checkpoint(init)
+    cfg = tiny_config(data={"max_train_sims": 6}, train={"epochs": 1, "batch_size": 6, "lr": 1e-9})
+    train(cfg, tiny_dataset(), tmp_path / "ft", progress=False, init=str(init))
+    after = load_checkpoint(tmp_path / "ft" / "checkpoint_last.pt")
+    assert after["normalization"] == before["normalization"]
+    # one epoch at a negligible learning rate: still (almost exactly) the pretrained weights, not a fresh init
+    for k, w in before["model"].items():
+        assert torch.allclose(after["model"][k].float(), w.float(), atol=1e-5), k
+    first = log(tmp_path / "ft")[0]
+    assert first["train_total"] < 0.5 * log(overfit_run)[0]["train_total"]  # starts where the init left off
+    with pytest.raises(CheckpointError, match="model config differs"):
+        train(tiny_config(model={"hidden_size": 8}), tiny_dataset(), tmp_path / "ft2", progress=False, init=str(init))
+    with pytest.raises(ValueError, match="cannot be combined with --resume"):
+        train(cfg, tiny_dataset(), tmp_path / "ft3", resume=str(init), init=str(init), progress=False)

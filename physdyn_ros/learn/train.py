@@ -274,8 +274,11 @@ def validate(core: DynamicsModel, val_ds: Any, val_index: np.ndarray, val_starts
 
 def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Optional[str] = None,
           time_limit: Optional[float] = None, device: str = "cpu", progress: bool = True,
-          allow_data_change: bool = False) -> dict[str, Any]:
-    """Train (or resume) and return a summary. `cfg` is a resolved config (resolve_config)."""
+          allow_data_change: bool = False, init: Optional[str] = None) -> dict[str, Any]:
+    """Train (or resume) and return a summary. `cfg` is a resolved config (resolve_config).
+
+    `init`: fine-tune, i.e. start a new run from this checkpoint's weights and normalisation statistics (its
+    model section must equal cfg's); the optimiser, schedule and epochs start afresh."""
     from torch.utils.data.distributed import DistributedSampler
 
     from .windows import WindowDataset, compute_stats, dataset_identity, fixed_windows, load_sims
@@ -300,6 +303,14 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
                 raise CheckpointError(f"{resume}: its {section} config differs from the requested one; resume "
                                       "with the checkpoint's config (omit --config) or start a new run")
 
+    base: Optional[dict[str, Any]] = None
+    if init is not None:
+        if resume is not None:
+            raise ValueError("--init starts a new run from a checkpoint's weights; it cannot be combined with --resume")
+        base = load_checkpoint(init, map_location="cpu")
+        if base["config"].get("model") != cfg["model"]:
+            raise CheckpointError(f"--init {init}: its model config differs from the requested one")
+
     dcfg = cfg["data"]
     train_sims = load_sims(data, ["train"], dcfg["categories"], dcfg["exclude_categories"])
     if dcfg["max_train_sims"]:
@@ -311,7 +322,8 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
         if old != identity["manifest_sha256"] and not allow_data_change:
             raise CheckpointError(f"{resume} was trained on a different dataset (manifest sha256 {str(old)[:12]} "
                                   f"vs {identity['manifest_sha256'][:12]}); pass --allow-data-change to continue")
-    stats = dict(ckpt["normalization"]) if ckpt is not None else compute_stats(train_sims)
+    # Fine-tuning keeps the pretrained statistics: the network's weights are tied to them.
+    stats = dict((ckpt or base)["normalization"]) if (ckpt or base) is not None else compute_stats(train_sims)
 
     torch.manual_seed(tcfg["seed"])
     model_cfg = ModelConfig.from_dict(cfg["model"])
@@ -320,6 +332,8 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
     optimizer = torch.optim.Adam(core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, tcfg))
     prog = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
+    if base is not None:
+        core.load_state_dict(base["model"])
     if ckpt is not None:
         core.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -450,6 +464,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", nargs="?", const="auto", default=None,
                         help="resume from a checkpoint; without a path: OUT/checkpoint_last.pt if it exists, "
                              "else start fresh (safe to use in restart loops)")
+    parser.add_argument("--init", default=None, metavar="CHECKPOINT",
+                        help="fine-tune: start a new run from this checkpoint's weights and normalisation (its "
+                             "config is used unless --config is given; change train values with --set)")
     parser.add_argument("--max-epochs", type=int, default=None, help="train until this many epochs (overrides train.epochs)")
     parser.add_argument("--time-limit", default=None, help="stop cleanly after this long (e.g. 3600, 90m, 2h)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
@@ -488,8 +505,14 @@ def run(args: argparse.Namespace) -> int:
         cfg = resolve_config(base)
     elif args.config:
         cfg = load_config(args.config, args.set)
+    elif args.init:
+        if not Path(args.init).is_file():
+            raise FileNotFoundError(f"--init checkpoint {args.init} does not exist")
+        base = copy.deepcopy(load_checkpoint(args.init)["config"])
+        apply_overrides(base, args.set)
+        cfg = resolve_config(base)
     else:
-        raise ValueError("--config is required for a new run")
+        raise ValueError("--config (or --init) is required for a new run")
     if args.max_epochs is not None:
         cfg["train"]["epochs"] = int(args.max_epochs)
     if args.threads is not None:
@@ -499,7 +522,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--seed cannot change on resume")
         cfg["train"]["seed"] = int(args.seed)
     summary = train(cfg, args.data, out, resume, parse_duration(args.time_limit), args.device,
-                    progress=not args.no_progress and sys.stderr.isatty(), allow_data_change=args.allow_data_change)
+                    progress=not args.no_progress and sys.stderr.isatty(), allow_data_change=args.allow_data_change,
+                    init=args.init)
     if int(os.environ.get("RANK", "0")) == 0:
         print(json.dumps(summary))
     return 0
