@@ -98,7 +98,7 @@ step "pip install -e physdyn_ros" "${PIP[@]}" install --no-deps --no-build-isola
 step "check imports" "$VENV/bin/python" -c "
 import rclpy, open3d, pybullet, torch
 from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
-from physdyn_ros.srv import PredictTrajectory, PushObject, SpawnObject
+from physdyn_ros.srv import PlanPush, PredictTrajectory, PushObject, SpawnObject
 import physdyn_ros.cli
 print('torch', torch.__version__)"
 step "check physdyn command" "$VENV/bin/physdyn" --help

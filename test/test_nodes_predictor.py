@@ -152,9 +152,12 @@ def test_steps_in_refines_with_observed_states(rclpy_init, predictor):
         send(c, node, twist_msg(), expect_prediction=True)
         dt = int(1e9 / 15)
         observed = [state_msg(T0 + k * dt, pos=(0.2 + 0.02 * k, 0.1, 0.04)) for k in (1, 2, 3)]
-        for s in observed:
+        for k, s in enumerate(observed, 1):  # online adaptation: one corrected trajectory per observed state
             c.observed.publish(s)
-        assert wait_for(lambda: any(t.steps_in == 3 for t in c.trajs), 10), node.last_error
+            assert wait_for(lambda: any(t.steps_in == k for t in c.trajs), 10), node.last_error
+        c.observed.publish(state_msg(T0 + 4 * dt, pos=(0.28, 0.1, 0.04)))  # beyond steps_in: no more
+        assert not wait_for(lambda: any(t.steps_in > 3 for t in c.trajs), 0.5)
+    assert [t.steps_in for t in c.trajs] == [0, 1, 2, 3]
     refined = next(t for t in c.trajs if t.steps_in == 3)
     assert time_to_ns(refined.header.stamp) == T0 and len(refined.states) == 31
     # observed frames keep their observed poses
@@ -244,3 +247,68 @@ def test_unloadable_model_stops_the_node(tmp_path, content, reason):
                           "-p", f"model_path:={path}"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 1
     assert "cannot start: cannot load model from" in run.stderr and reason in run.stderr, run.stderr[-2000:]
+
+
+def plan_request(goal=(0.3, 0.12, 0.0), start=(0.2, 0.1, 0.0), **kw):
+    from physdyn_ros.srv import PlanPush
+
+    req = PlanPush.Request()
+    req.header.frame_id = kw.pop("frame", "world")
+    req.object_id = kw.pop("object_id", "")
+    if "cloud" in kw:
+        req.cloud = kw.pop("cloud")
+    req.start_from_object_state = kw.pop("start_from_object_state", False)
+    for msg, (x, y, yaw) in ((req.start_pose, start), (req.goal_pose, goal)):
+        msg.position = point((x, y, 0.04))
+        msg.orientation.z, msg.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    req.position_tolerance = kw.pop("position_tolerance", 0.05)
+    req.yaw_tolerance = kw.pop("yaw_tolerance", math.pi)
+    req.time_budget = kw.pop("time_budget", 0.3)
+    for k, v in kw.items():
+        setattr(req, k, v)
+    return req
+
+
+def test_plan_push_service(rclpy_init, predictor):
+    from physdyn_ros.srv import PlanPush
+
+    node = predictor(plan_max_topple_probability=1.0)  # random weights: topple predictions mean nothing
+    c = Client(rclpy_init)
+    plan = c.node.create_client(PlanPush, "plan_push")
+    with Spinner(node, c.node):
+        res = call(plan, plan_request(cloud=xyz_to_cloud(CLOUD, "world")), timeout=30)
+        assert res.success, res.message
+        v = np.array([res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z])
+        j = np.array([res.impulse.x, res.impulse.y, res.impulse.z])
+        assert np.linalg.norm(v) > 0 and j == pytest.approx(res.mass * v)
+        assert res.trajectory.model_id == node.model_id and len(res.trajectory.states) > 10
+        last = res.trajectory.states[-1].pose.position
+        assert (res.predicted_final_pose.position.x, res.predicted_final_pose.position.y) == pytest.approx(
+            (last.x, last.y))
+        err = math.hypot(last.x - 0.3, last.y - 0.12)
+        assert res.predicted_position_error == pytest.approx(err, abs=1e-6)
+        assert res.within_tolerance == (err <= 0.05) and 0 < res.planning_time < 3.0
+        # by object_id, starting from the latest object_state
+        c.features.publish(feature_msg(node.predictor, object_id="box"))
+        c.states.publish(state_msg(T0))
+        assert wait_for(lambda: node._features.get("box") and node._states.get("box"))
+        res = call(plan, plan_request(object_id="box", start=(9.0, 9.0, 0.0), start_from_object_state=True),
+                   timeout=30)
+        assert res.success, res.message  # the start (9, 9) was ignored: the object_state (0.2, 0.1) is used
+        assert res.trajectory.states[0].pose.position.x == pytest.approx(0.2, abs=1e-6)
+        bad = {
+            "request header frame_id 'map'": plan_request(object_id="box", frame="map"),
+            "goal (5.000, 0.000) is off the table": plan_request(object_id="box", goal=(5.0, 0.0, 0.0)),
+            "no shape feature received for object 'cup'": plan_request(object_id="cup"),
+            "time_budget must be finite and >= 0": plan_request(object_id="box", time_budget=-1.0),
+            "goal_pose: position is not finite": plan_request(object_id="box", goal=(math.nan, 0.0, 0.0)),
+            "start_from_object_state: no object_state of 'mug'": plan_request(
+                object_id="mug", cloud=xyz_to_cloud(CLOUD, "world"), start_from_object_state=True),
+        }
+        for reason, req in bad.items():
+            res = call(plan, req, timeout=30)
+            assert not res.success and reason in res.message, (reason, res.message)
+        node.set_parameters([Parameter("plan_table_bounds", value=[-10.0, 10.0, -10.0, 10.0])])
+        res = call(plan, plan_request(object_id="box", goal=(4.0, 0.1, 0.0)), timeout=30)
+        assert not res.success and "goal unreachable" in res.message
+        assert call(plan, plan_request(object_id="box"), timeout=30).success  # still serving

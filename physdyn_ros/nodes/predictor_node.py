@@ -8,11 +8,13 @@ Inputs
                                    prediction (the paper's "steps in": adapts to the real friction)
 Outputs (reliable, transient local, depth 1: the latest prediction reaches late joiners)
   predicted_trajectory (PredictedTrajectory), predicted_path (nav_msgs/Path), predicted_markers (MarkerArray)
-Service
+Services
   predict_trajectory (PredictTrajectory): a one-off roll-out for a cloud or a known object_id.
+  plan_push (PlanPush): the push (velocity, impulse, contact point) that brings an object to a goal pose
+                        (physdyn_ros.planning: CEM over batched roll-outs, bounded by plan_time_budget).
 
 The model is loaded once at start; a checkpoint that cannot be loaded stops the node with a non-zero exit.
-Roll-outs (topic and service) run in one MutuallyExclusiveCallbackGroup, so torch runs in one thread at a time,
+Roll-outs and plans (topic and services) run in one MutuallyExclusiveCallbackGroup, so torch runs in one thread at a time,
 while the data callbacks (features, states) run in another group and keep filling the buffers.
 """
 from __future__ import annotations
@@ -40,7 +42,7 @@ from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy,
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.trajectory import msg_to_path, trajectory_markers, trajectory_to_msg
-from ..srv import PredictTrajectory
+from ..srv import PlanPush, PredictTrajectory
 
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -70,6 +72,7 @@ class PendingRefinement:
     ang_vel: np.ndarray
     feature: ShapeFeature
     deadline: float  # time.monotonic() after which the refinement is dropped
+    published: int = 0  # observed states used by the last re-prediction published
 
 
 class PredictorNode(Node):
@@ -103,9 +106,25 @@ class PredictorNode(Node):
         declare(self, "steps_in", 0, "observed states (observed_state topic) after the push to feed the model "
                 "before it predicts on its own; > 0 publishes a second, refined trajectory", low=0)
         declare(self, "box_every", 10, "a CUBE marker every this many steps (and at the last)", low=1)
+        declare(self, "plan_time_budget", 0.5, "s of planning per plan_push request (default of the request's "
+                "time_budget)", low=0.01, high=30.0)
+        declare(self, "plan_max_speed", 1.5, "m/s, fastest push plan_push may choose (request default)", low=0.01)
+        declare(self, "plan_max_topple_probability", 0.2, "plan_push rejects pushes predicted to topple more "
+                "likely than this", low=0.0, high=1.0)
+        declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
+        declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
+                low=1e-4)
+        declare(self, "plan_density", 1000.0, "kg/m^3, for the mass estimate when a request gives no mass",
+                low=1.0)
+        declare(self, "plan_table_bounds", [-1.0, 1.0, -1.0, 1.0], "x_min, x_max, y_min, y_max (m) of the table "
+                "top in table_frame: starts, goals and predicted paths must stay inside; [] = no edge")
 
         self.predictor = load_predictor(self, model_path, device, threads)
         self.model_id: str = self.predictor.model_id
+        from ..planning import PushPlanner
+
+        self.planner = PushPlanner(self.predictor)
+        self.planner.warm_up()  # timing calibration and first-call costs, before the node reports ready
         self._lock = threading.Condition()
         self._features: dict[str, deque[ShapeFeature]] = {}
         self._latest_feature_id: str | None = None
@@ -128,6 +147,7 @@ class PredictorNode(Node):
                                  callback_group=self._data)
         self.create_subscription(TwistStamped, "initial_twist", self._on_twist, 10, callback_group=self._infer)
         self.create_service(PredictTrajectory, "predict_trajectory", self._on_service, callback_group=self._infer)
+        self.create_service(PlanPush, "plan_push", self._on_plan, callback_group=self._infer)
         self.create_timer(0.05, self._on_refine_timer, callback_group=self._infer)
         self.get_logger().info(f"ready: model {self.model_id}, horizon {self.get_parameter('horizon').value}, "
                                f"frame '{self.table_frame}'")
@@ -294,7 +314,8 @@ class PredictorNode(Node):
                 time.monotonic() + steps_in * float(self.predictor.dt) * 3 + 2.0))
 
     def _on_refine_timer(self) -> None:
-        """Re-run pending predictions once `steps_in` observed states after their push have arrived."""
+        """Re-predict pending pushes as observed states arrive: one corrected trajectory per new observed state,
+        fed as "steps in", until `steps_in` states have been used."""
         if not self._pending:
             return
         steps_in = int(self._param("steps_in"))
@@ -305,12 +326,12 @@ class PredictorNode(Node):
                 obs = [s for s in self._observed.get(p.object_id, ())
                        if p.t0_ns + dt_ns // 2 <= time_to_ns(s.header.stamp)]
             obs = obs[:steps_in]
-            if len(obs) < steps_in:
+            if len(obs) <= p.published:
                 if time.monotonic() < p.deadline:
                     keep.append(p)
                 else:
                     self._fail(f"steps_in {steps_in}: only {len(obs)} observed_state messages of '{p.object_id}' "
-                               "after the push; refinement dropped")
+                               "after the push; refinement stopped")
                 continue
             try:
                 observed = self.observed(obs)
@@ -318,12 +339,15 @@ class PredictorNode(Node):
                                               horizon=self.horizon(), position=p.position, orientation=p.orientation,
                                               observed=observed)
             except Exception as exc:  # noqa: BLE001
-                self._fail(f"refinement with {steps_in} observed states failed: {exc}")
+                self._fail(f"refinement with {len(obs)} observed states failed: {exc}")
                 continue
             out = trajectory_to_msg(traj, self.table_frame, ns_to_time(p.t0_ns), p.object_id, self.model_id,
-                                    steps_in=steps_in)
+                                    steps_in=len(obs))
             self.publish(out, p.feature)
             self.predictions += 1
+            p.published = len(obs)
+            if p.published < steps_in:
+                keep.append(p)
         self._pending = keep
 
     def observed(self, states: list[ObjectState]):
@@ -400,6 +424,102 @@ class PredictorNode(Node):
         res.topple_probability = res.trajectory.topple_probability
         res.success = True
         res.message = f"{horizon} steps in {1e3 * (time.monotonic() - t_start):.1f} ms"
+        return res
+
+
+    # -------------------------------------------------------------------------------------------- plan_push
+    def planner_config(self, req: PlanPush.Request):
+        from ..planning import PlannerConfig, TableBounds
+
+        bounds = list(self._param("plan_table_bounds") or [])
+        if bounds and len(bounds) != 4:
+            raise RequestError(f"plan_table_bounds must be [x_min, x_max, y_min, y_max] or [], got {bounds}")
+        for name in ("max_speed", "time_budget", "mass", "position_tolerance", "yaw_tolerance"):
+            v = float(getattr(req, name))
+            if not np.isfinite(v) or v < 0:
+                raise RequestError(f"{name} must be finite and >= 0 (0 = the node's default), got {v}")
+        return PlannerConfig(max_speed=req.max_speed or float(self._param("plan_max_speed")),
+                             time_budget=req.time_budget or float(self._param("plan_time_budget")),
+                             max_topple_probability=float(self._param("plan_max_topple_probability")),
+                             density=float(self._param("plan_density")),
+                             table=TableBounds(*bounds) if bounds else None)
+
+    def plan_start(self, req: PlanPush.Request, object_id: str):
+        from ..planning import Pose2D, yaw_of
+
+        if req.start_from_object_state:
+            with self._lock:
+                states = list(self._states.get(object_id, ()))
+            if not states:
+                raise RequestError(f"start_from_object_state: no object_state of '{object_id}' received")
+            self.check_frame(states[-1].header.frame_id, "object_state")
+            pose_msg = states[-1].pose
+        else:
+            pose_msg = req.start_pose
+        try:
+            p, q = pose_to_numpy(pose_msg, zero_is_identity=True)
+        except ValueError as exc:
+            raise RequestError(f"start pose: {exc}") from None
+        return Pose2D(float(p[0]), float(p[1]), float(yaw_of(q)))
+
+    def _on_plan(self, req: PlanPush.Request, res: PlanPush.Response) -> PlanPush.Response:
+        from ..planning import Goal, Pose2D, yaw_of
+        from ..ros.convert import pose
+
+        try:
+            self.check_frame(req.header.frame_id, "request header")
+            cfg = self.planner_config(req)
+            try:
+                gp, gq = pose_to_numpy(req.goal_pose, zero_is_identity=True)
+            except ValueError as exc:
+                raise RequestError(f"goal_pose: {exc}") from None
+            goal = Goal(Pose2D(float(gp[0]), float(gp[1]), float(yaw_of(gq))),
+                        req.position_tolerance or float(self._param("plan_position_tolerance")),
+                        req.yaw_tolerance or float(self._param("plan_yaw_tolerance")))
+            cloud = None
+            if req.cloud.width * req.cloud.height > 0 or len(req.cloud.data) > 0:
+                if req.cloud.header.frame_id not in ("", self.table_frame):
+                    self.check_frame(req.cloud.header.frame_id, "cloud")
+                try:
+                    cloud = cloud_to_xyz(req.cloud, max_points=100_000, rng=np.random.default_rng(0))
+                except ValueError as exc:
+                    raise RequestError(f"cloud: {exc}") from None
+                object_id, shape = req.object_id or "cloud", cloud
+            else:
+                if not req.object_id and not self._latest_feature_id:
+                    raise RequestError("request has neither a cloud nor an object_id, and no shape feature was "
+                                       "received")
+                object_id = self.target_object(req.object_id)
+                feat = self.select_feature(object_id, None)
+                shape = self.shape_code(feat)
+            start = self.plan_start(req, object_id)
+            plan = self.planner.plan(shape, start, goal, mass=req.mass or None, config=cfg)
+        except ValueError as exc:  # RequestError, PlanningError or the Predictor refusing an input
+            res.success, res.message = False, str(exc)
+            self.rejected += 1
+            self.last_error = res.message
+            self.get_logger().warning(f"plan_push refused: {res.message}", throttle_duration_sec=1.0)
+            return res
+        except Exception as exc:  # noqa: BLE001 - answer, never crash on a request
+            res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
+            self.get_logger().error(res.message)
+            return res
+        stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
+        res.success, res.message = True, plan.message
+        res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z = map(float, plan.lin_vel)
+        res.push_twist.angular.x, res.push_twist.angular.y, res.push_twist.angular.z = map(float, plan.ang_vel)
+        res.impulse.x, res.impulse.y, res.impulse.z = map(float, plan.impulse)
+        res.contact_point.x, res.contact_point.y, res.contact_point.z = map(float, plan.contact_point)
+        res.mass = float(plan.mass)
+        fy = plan.final_pose.yaw
+        res.predicted_final_pose = pose(plan.final_position, [0.0, 0.0, np.sin(fy / 2), np.cos(fy / 2)])
+        res.predicted_position_error = float(plan.position_error)
+        res.predicted_yaw_error = float(plan.yaw_error)
+        res.within_tolerance = bool(plan.within_tolerance)
+        res.planning_time = float(plan.planning_time)
+        res.trajectory = trajectory_to_msg(plan.trajectory, self.table_frame, stamp, object_id, self.model_id)
+        res.topple_probability = res.trajectory.topple_probability
+        self.get_logger().info(f"plan_push '{object_id}': {plan.message}")
         return res
 
 
