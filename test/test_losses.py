@@ -94,3 +94,24 @@ def test_bad_shapes_and_config_are_rejected():
         LossConfig.from_dict({"eps": 0})
     with pytest.raises(ValueError, match="unknown loss config"):
         LossConfig.from_dict({"w_speed": 1})
+
+
+def test_target_relative_loss_pulls_a_resting_prediction_to_zero():
+    """At a zero target the symmetric form saturates (no gradient); the paper's form keeps pulling to rest."""
+    import torch
+
+    from physdyn_ros.learn.losses import LossConfig, dynamics_loss
+
+    target = torch.zeros(1, 4, 12)
+    topple = torch.zeros(1, 4)
+    grads = {}
+    for form in ("both", "target"):
+        raw = torch.full((1, 4, 13), 0.5, requires_grad=True)
+        loss, parts = dynamics_loss(raw, target, topple, LossConfig(eps=0.1, relative_to=form))
+        loss.backward()
+        grads[form] = raw.grad[..., :12].abs().max().item()
+        if form == "target":  # ||x_hat|| / eps per component
+            assert parts["vel"].item() == pytest.approx((0.5 * 3 ** 0.5) / 0.1, rel=1e-5)
+    assert grads["target"] > 20 * grads["both"]
+    with pytest.raises(ValueError, match="relative_to"):
+        LossConfig.from_dict({"relative_to": "pred"})
