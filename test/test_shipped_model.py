@@ -1,0 +1,60 @@
+"""Regression guard for the shipped model (physdyn_ros/models/default.pt) on fixed test-split sequences.
+
+test/fixtures/regression_set.npz holds 20 sequences of shapes never trained on (three per category that move
+for more than 8 frames without toppling, two that topple; test/fixtures/make_regression_set.py). The bounds sit about 1.5x above what the shipped model
+measures on them (numbers in physdyn_ros/models/MODEL_CARD.md), so a broken export, a changed frame
+convention or a worse model fails here.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from physdyn_ros import geometry as geo
+from physdyn_ros.resources import DEFAULT_MODEL
+
+FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
+#: bounds on the sliding sequences after 4 s (median over sequences), and on the mean per-step error
+MAX_FINAL_POS_CM = 32.0  # measured 21.4 (these are the long pushes the model underestimates; see the card)
+MAX_FINAL_ROT_DEG = 70.0  # measured 46.0
+MAX_STEP_POS_CM = 0.75  # measured 0.50
+
+
+@pytest.fixture(scope="module")
+def rollouts():
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load()  # the shipped model
+    d = dict(np.load(FIXTURE))
+    trajs = [pred.rollout(d["cloud"][i], d["lin_vel"][i, 0], d["ang_vel"][i, 0], horizon=60,
+                          position=d["pos"][i, 0], orientation=d["quat"][i, 0]) for i in range(len(d["cloud"]))]
+    return pred, d, trajs
+
+
+def test_shipped_model_is_small_and_documented():
+    assert DEFAULT_MODEL.is_file() and DEFAULT_MODEL.stat().st_size <= 30 * 2**20
+    card = (DEFAULT_MODEL.parent / "MODEL_CARD.md").read_text()
+    from physdyn_ros.predictor import Predictor
+
+    assert Predictor.load().model_id in card  # the card describes this very file
+
+
+def test_shipped_model_errors_on_fixed_test_sequences(rollouts):
+    _, d, trajs = rollouts
+    slide = np.flatnonzero(~d["toppled"])
+    pos = np.array([np.linalg.norm(trajs[i].positions - d["pos"][i], axis=-1) for i in slide]) * 100  # cm
+    rot = np.array([np.degrees(geo.quat_angle_between(trajs[i].orientations, d["quat"][i])) for i in slide])
+    final_pos, final_rot = float(np.median(pos[:, -1])), float(np.median(rot[:, -1]))
+    step = float(np.mean(np.linalg.norm(np.diff(np.array([trajs[i].positions for i in slide]), axis=1)
+                                        - np.diff(d["pos"][slide], axis=1), axis=-1))) * 100
+    print(f"final position {final_pos:.2f} cm, final rotation {final_rot:.2f} deg, per step {step:.3f} cm")
+    assert final_pos < MAX_FINAL_POS_CM and final_rot < MAX_FINAL_ROT_DEG and step < MAX_STEP_POS_CM
+
+
+def test_shipped_model_flags_toppling(rollouts):
+    _, d, trajs = rollouts
+    prob = np.array([t.topple_probability for t in trajs])
+    assert np.all(prob[d["toppled"]] > 0.5), prob[d["toppled"]]
+    assert np.mean(prob[~d["toppled"]] < 0.5) >= 0.5, prob[~d["toppled"]]  # measured 12 of 18
