@@ -104,7 +104,8 @@ class PredictorNode(Node):
         declare(self, "max_linear_speed", 5.0, "initial |v| above this (m/s) is rejected as absurd", low=0.0)
         declare(self, "max_angular_speed", 60.0, "initial |w| above this (rad/s) is rejected as absurd", low=0.0)
         declare(self, "steps_in", 0, "observed states (observed_state topic) after the push to feed the model "
-                "before it predicts on its own; > 0 publishes a second, refined trajectory", low=0)
+                "before it predicts on its own; > 0 publishes a corrected trajectory for each observed state, up to "
+                "steps_in", low=0)
         declare(self, "box_every", 10, "a CUBE marker every this many steps (and at the last)", low=1)
         declare(self, "plan_time_budget", 0.5, "s of planning per plan_push request (default of the request's "
                 "time_budget)", low=0.01, high=30.0)
@@ -117,7 +118,7 @@ class PredictorNode(Node):
         declare(self, "plan_density", 1000.0, "kg/m^3, for the mass estimate when a request gives no mass",
                 low=1.0)
         declare(self, "plan_table_bounds", [-1.0, 1.0, -1.0, 1.0], "x_min, x_max, y_min, y_max (m) of the table "
-                "top in table_frame: starts, goals and predicted paths must stay inside; [] = no edge")
+                "top in table_frame: starts, goals and predicted paths must stay inside")
 
         self.predictor = load_predictor(self, model_path, device, threads)
         self.model_id: str = self.predictor.model_id
