@@ -114,8 +114,8 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bag_finetune")
     ap.add_argument("--friction", type=float, default=0.3, help="friction of the recorded table (model: 0.5)")
     ap.add_argument("--pushes", type=int, default=150)
-    ap.add_argument("--epochs", type=int, default=30, help="fine-tuning epochs")
-    ap.add_argument("--lr", type=float, default=3e-4)
+    ap.add_argument("--epochs", type=int, default=150, help="fine-tuning epochs")
+    ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     out = args.out

@@ -192,7 +192,7 @@ def main() -> int:
         # twist -> trajectory (the state of the push instant published first, as the sim does)
         lat = []
         for i in range(args.samples):
-            stamp = T_BASE + 10**10 + i * 10**8
+            stamp = T_BASE + 10**9 + i * 10**7  # within max_feature_age of the feature (stamped near T_BASE)
             s = object_state("world", ns_to_time(stamp), "object", (0.2, 0.1, 0.04), (0, 0, 0, 1), (0, 0, 0), (0, 0, 0))
             bench.state.publish(s)
             tw = TwistStamped(header=Header(frame_id="world", stamp=ns_to_time(stamp)))
