@@ -372,6 +372,36 @@ class PredictorNode(Node):
         return Observed(positions=np.array(pos).reshape(-1, 3), orientations=np.array(quat).reshape(-1, 4),
                         lin_vels=np.array(lin).reshape(-1, 3), ang_vels=np.array(ang).reshape(-1, 3))
 
+    # --------------------------------------------------------------------------------------- service helpers
+    def request_shape(self, req, stamp_ns: int | None):
+        """(object_id, cloud points or None, shape code or None) of a request naming a cloud or an object_id."""
+        if req.cloud.width * req.cloud.height > 0 or len(req.cloud.data) > 0:
+            if req.cloud.header.frame_id not in ("", self.table_frame):
+                self.check_frame(req.cloud.header.frame_id, "cloud")
+            try:
+                pts = cloud_to_xyz(req.cloud, max_points=100_000, rng=np.random.default_rng(0))
+            except ValueError as exc:
+                raise RequestError(f"cloud: {exc}") from None
+            if len(pts) < 3:
+                raise RequestError(f"cloud has {len(pts)} finite points; at least 3 are needed")
+            return req.object_id or "cloud", pts, None
+        if not req.object_id and not self._latest_feature_id:
+            raise RequestError("request has neither a cloud nor an object_id, and no shape feature was received")
+        object_id = self.target_object(req.object_id)
+        return object_id, None, self.shape_code(self.select_feature(object_id, stamp_ns))
+
+    def refuse(self, service: str, res, exc: Exception):
+        """A failed response with the reason: bad inputs (ValueError) are counted, anything else is logged."""
+        if isinstance(exc, ValueError):  # RequestError, PlanningError or the Predictor refusing an input
+            res.success, res.message = False, str(exc)
+            self.rejected += 1
+            self.last_error = res.message
+            self.get_logger().warning(f"{service} refused: {res.message}", throttle_duration_sec=1.0)
+        else:
+            res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
+            self.get_logger().error(res.message)
+        return res
+
     # ---------------------------------------------------------------------------------------------- service
     def _on_service(self, req: PredictTrajectory.Request,
                     res: PredictTrajectory.Response) -> PredictTrajectory.Response:
@@ -385,39 +415,15 @@ class PredictorNode(Node):
                 position, orientation = pose_to_numpy(req.initial_pose, zero_is_identity=True)
             except ValueError as exc:
                 raise RequestError(f"initial_pose: {exc}") from None
-            feat = None
-            if req.cloud.width * req.cloud.height > 0 or len(req.cloud.data) > 0:
-                if req.cloud.header.frame_id not in ("", self.table_frame):
-                    self.check_frame(req.cloud.header.frame_id, "cloud")
-                try:
-                    pts = cloud_to_xyz(req.cloud, max_points=100_000, rng=np.random.default_rng(0))
-                except ValueError as exc:
-                    raise RequestError(f"cloud: {exc}") from None
-                if len(pts) < 3:
-                    raise RequestError(f"cloud has {len(pts)} finite points; at least 3 are needed")
+            stamp_ns = time_to_ns(req.header.stamp)
+            object_id, pts, shape = self.request_shape(req, stamp_ns if stamp_ns > 0 else None)
+            if pts is not None:
                 shape = self.predictor.encode(pts)
-                object_id = req.object_id or "cloud"
-            else:
-                if not req.object_id and not self._latest_feature_id:
-                    raise RequestError("request has neither a cloud nor an object_id, and no shape feature was "
-                                       "received")
-                object_id = self.target_object(req.object_id)
-                stamp_ns = time_to_ns(req.header.stamp)
-                feat = self.select_feature(object_id, stamp_ns if stamp_ns > 0 else None)
-                shape = self.shape_code(feat)
             observed = self.observed(list(req.observed)) if req.observed else None
             traj = self.predictor.rollout(shape, lin, ang, horizon=horizon, position=position,
                                           orientation=orientation, observed=observed)
-        except ValueError as exc:
-            res.success, res.message = False, str(exc)
-            self.rejected += 1
-            self.last_error = res.message
-            self.get_logger().warning(f"predict_trajectory refused: {res.message}", throttle_duration_sec=1.0)
-            return res
-        except Exception as exc:  # noqa: BLE001 - answer, never crash on a request
-            res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
-            self.get_logger().error(res.message)
-            return res
+        except Exception as exc:  # noqa: BLE001 - answer with the reason, never crash on a request
+            return self.refuse("predict_trajectory", res, exc)
         stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
         res.trajectory = trajectory_to_msg(traj, self.table_frame, stamp, object_id, self.model_id,
                                            steps_in=len(req.observed))
@@ -477,34 +483,12 @@ class PredictorNode(Node):
             goal = Goal(Pose2D(float(gp[0]), float(gp[1]), float(yaw_of(gq))),
                         req.position_tolerance or float(self._param("plan_position_tolerance")),
                         req.yaw_tolerance or float(self._param("plan_yaw_tolerance")))
-            cloud = None
-            if req.cloud.width * req.cloud.height > 0 or len(req.cloud.data) > 0:
-                if req.cloud.header.frame_id not in ("", self.table_frame):
-                    self.check_frame(req.cloud.header.frame_id, "cloud")
-                try:
-                    cloud = cloud_to_xyz(req.cloud, max_points=100_000, rng=np.random.default_rng(0))
-                except ValueError as exc:
-                    raise RequestError(f"cloud: {exc}") from None
-                object_id, shape = req.object_id or "cloud", cloud
-            else:
-                if not req.object_id and not self._latest_feature_id:
-                    raise RequestError("request has neither a cloud nor an object_id, and no shape feature was "
-                                       "received")
-                object_id = self.target_object(req.object_id)
-                feat = self.select_feature(object_id, None)
-                shape = self.shape_code(feat)
+            object_id, cloud, shape = self.request_shape(req, None)
+            shape = cloud if cloud is not None else shape
             start = self.plan_start(req, object_id)
             plan = self.planner.plan(shape, start, goal, mass=req.mass or None, config=cfg)
-        except ValueError as exc:  # RequestError, PlanningError or the Predictor refusing an input
-            res.success, res.message = False, str(exc)
-            self.rejected += 1
-            self.last_error = res.message
-            self.get_logger().warning(f"plan_push refused: {res.message}", throttle_duration_sec=1.0)
-            return res
-        except Exception as exc:  # noqa: BLE001 - answer, never crash on a request
-            res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
-            self.get_logger().error(res.message)
-            return res
+        except Exception as exc:  # noqa: BLE001 - answer with the reason, never crash on a request
+            return self.refuse("plan_push", res, exc)
         stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
         res.success, res.message = True, plan.message
         res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z = map(float, plan.lin_vel)
