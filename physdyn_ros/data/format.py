@@ -39,7 +39,8 @@ def shard_name(index: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- atomic writing
-def _atomic_write(path: Path, write) -> None:
+def atomic_write(path: Path, write) -> None:
+    """Write `path` through `write(binary file)` into a temporary file in the same folder, fsync, rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -75,13 +76,13 @@ def npz_bytes(arrays: Mapping[str, np.ndarray], compress: bool = True) -> bytes:
 def write_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], compress: bool = True) -> str:
     """Write arrays atomically as .npz; returns the file's sha256."""
     data = npz_bytes(arrays, compress)
-    _atomic_write(Path(path), lambda fh: fh.write(data))
+    atomic_write(Path(path), lambda fh: fh.write(data))
     return hashlib.sha256(data).hexdigest()
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
     data = (json.dumps(obj, indent=1, sort_keys=False) + "\n").encode()
-    _atomic_write(Path(path), lambda fh: fh.write(data))
+    atomic_write(Path(path), lambda fh: fh.write(data))
 
 
 def sha256_file(path: str | os.PathLike) -> str:

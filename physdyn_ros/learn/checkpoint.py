@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import os
 import random
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -26,6 +25,7 @@ from typing import Any, Optional
 import numpy as np
 import torch
 
+from ..data.format import atomic_write
 from .model import DynamicsModel, ModelConfig
 
 FORMAT = "physdyn-checkpoint"
@@ -72,20 +72,7 @@ def restore_rng(state: dict[str, Any]) -> None:
 
 
 def _atomic_save(obj: dict[str, Any], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            torch.save(obj, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    atomic_write(path, lambda fh: torch.save(obj, fh))
 
 
 def save_checkpoint(path: str | os.PathLike, *, model: DynamicsModel, config: dict[str, Any],

@@ -13,8 +13,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -25,6 +23,7 @@ from ..ros.cloud import cloud_size, cloud_to_xyz
 from ..ros.convert import point, vector3
 from ..ros.model import load_predictor
 from ..ros.params import declare
+from ..ros.run import run_node
 
 #: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, and a queue of huge clouds
 #: would hold hundreds of MB.
@@ -185,21 +184,7 @@ class PerceptionNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PerceptionNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # noqa: BLE001 - e.g. the model cannot be loaded: say why, exit non-zero
-        rclpy.logging.get_logger("perception").fatal(f"cannot start: {exc}")
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(PerceptionNode, "perception", args)
 
 
 if __name__ == "__main__":

@@ -26,11 +26,9 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Path
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
@@ -41,6 +39,7 @@ from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
 from ..ros.model import load_predictor
 from ..ros.params import declare
+from ..ros.run import run_node
 from ..ros.trajectory import msg_to_path, trajectory_markers, trajectory_to_msg
 from ..srv import PlanPush, PredictTrajectory
 
@@ -509,24 +508,8 @@ class PredictorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PredictorNode()
-        # Threads: one for roll-outs (their group is mutually exclusive), the others keep the buffers filling.
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # noqa: BLE001 - e.g. the model cannot be loaded: say why, exit non-zero
-        rclpy.logging.get_logger("predictor").fatal(f"cannot start: {exc}")
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    # Threads: one for roll-outs (their group is mutually exclusive), the others keep the buffers filling.
+    return run_node(PredictorNode, "predictor", args, threads=3)
 
 
 if __name__ == "__main__":

@@ -16,11 +16,9 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -33,6 +31,7 @@ from ..msg import ObjectState
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, pose, quat_to_matrix, twist, vector3, xyz_to_numpy
 from ..ros.params import declare
+from ..ros.run import run_node
 from ..ros.trajectory import object_state
 from ..srv import PushObject, SpawnObject
 
@@ -403,21 +402,7 @@ class SimNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = SimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # noqa: BLE001 - a node that cannot start says why and exits non-zero
-        rclpy.logging.get_logger("sim").fatal(f"cannot start: {exc}")
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(SimNode, "sim", args)
 
 
 if __name__ == "__main__":
