@@ -115,3 +115,16 @@ def test_target_relative_loss_pulls_a_resting_prediction_to_zero():
     assert grads["target"] > 20 * grads["both"]
     with pytest.raises(ValueError, match="relative_to"):
         LossConfig.from_dict({"relative_to": "pred"})
+
+
+def test_absolute_term_adds_the_normalised_error_and_is_off_by_default():
+    raw, target, topple = torch.zeros(1, 2, 13), torch.zeros(1, 2, 12), torch.zeros(1, 2)
+    target[0, 0, 6:9] = torch.tensor([3.0, 4.0, 0.0])  # |d_pos error| = 5
+    target[0, 1, 9:12] = torch.tensor([1.0, -1.0, 0.0])  # L1 rot error = 2
+    base, parts = dynamics_loss(raw, target, topple, LossConfig(relative_to="target", eps=0.1))
+    assert "abs" not in parts
+    total, parts = dynamics_loss(raw, target, topple, LossConfig(relative_to="target", eps=0.1, w_abs=0.5))
+    assert parts["abs"].item() == pytest.approx((5.0 + 2.0) / 2)
+    assert total.item() == pytest.approx(base.item() + 0.5 * 3.5)
+    with pytest.raises(ValueError):
+        LossConfig.from_dict({"w_abs": -1})

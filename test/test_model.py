@@ -13,10 +13,14 @@ from physdyn_ros.learn.model import OUT_DIM, STAT_KEYS, DynamicsModel, ModelConf
 STATS = dict(zip(STAT_KEYS, (0.5, 8.0, 0.2, 4.0, 0.03, 0.5, 0.15)))
 
 
-def tiny_model(cell: str = "lstm", norm: str = "layer") -> DynamicsModel:
+def tiny_model(cell: str = "lstm", norm: str = "layer", skip: bool = False) -> DynamicsModel:
     torch.manual_seed(0)
-    cfg = ModelConfig(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), hidden_size=32, cell=cell, norm=norm)
-    return DynamicsModel(cfg, STATS).eval()
+    cfg = ModelConfig(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), hidden_size=32, cell=cell, norm=norm,
+                      input_skip=skip)
+    m = DynamicsModel(cfg, STATS).eval()
+    if skip:  # it starts at zero; give it weights so that the tests see the path
+        torch.nn.init.normal_(m.skip.weight)
+    return m
 
 
 @pytest.mark.parametrize("cell", ["lstm", "mlp"])
@@ -52,8 +56,9 @@ def test_paper_configuration_size():
 
 
 @pytest.mark.parametrize("cell", ["lstm", "mlp"])
-def test_compiled_rollout_equals_teacher_forcing_on_its_own_inputs(cell):
-    m = tiny_model(cell)
+@pytest.mark.parametrize("skip", [False, True])
+def test_compiled_rollout_equals_teacher_forcing_on_its_own_inputs(cell, skip):
+    m = tiny_model(cell, skip=skip)
     with torch.no_grad():
         feat = m.encode(torch.randn(4, 64, 3) * 0.1)
         out = m.rollout(feat, torch.randn(4, 3), torch.randn(4, 3), 25)
@@ -63,6 +68,20 @@ def test_compiled_rollout_equals_teacher_forcing_on_its_own_inputs(cell):
         assert torch.allclose(again[k], out[k], atol=1e-5), k
     # fed back: v_{t+1} = v_t + d_vel_t
     assert torch.allclose(out["vel"][:, 1:], out["vel"][:, :-1] + out["d_vel"], atol=1e-5)
+
+
+def test_input_skip_starts_as_the_plain_network_and_is_linear_in_the_input():
+    plain = tiny_model()
+    skip = DynamicsModel(ModelConfig(**{**plain.cfg.to_dict(), "input_skip": True}), STATS).eval()
+    skip.load_state_dict({**plain.state_dict(), "skip.weight": torch.zeros(OUT_DIM, 6)})
+    feat, vel, ang = torch.randn(2, 8), torch.randn(2, 5, 3), torch.randn(2, 5, 3)
+    with torch.no_grad():
+        assert torch.equal(plain.teacher_forced(feat, vel, ang), skip.teacher_forced(feat, vel, ang))
+        skip.skip.weight.fill_(0.5)
+        delta = skip.teacher_forced(feat, vel, ang) - plain.teacher_forced(feat, vel, ang)
+    x = torch.cat([vel / STATS["vel"], ang / STATS["angvel"]], -1)
+    assert torch.allclose(delta, 0.5 * x.sum(-1, keepdim=True).expand_as(delta), atol=1e-5)
+    assert tiny_model().skip is None and "skip.weight" not in tiny_model().state_dict()
 
 
 def test_steps_in_feeds_the_observed_velocities():

@@ -8,6 +8,7 @@ relative_to "both" (symmetric):
 then
     L_cls = BCE(topple logit, label)
     L     = w_v L_v + w_w L_w + w_p L_p + w_rot L_rot + w_cls L_cls   (paper: all 1, w_cls = 2)
+    (+ w_abs L_abs, the absolute error in normalised units; off by default)
 
 Relative errors weigh a slow object's small increments as much as a fast one's large ones (the paper's
 reason). The original had no eps, so a resting object (both vectors exactly 0) gave 0/0 = NaN; with eps the
@@ -41,6 +42,10 @@ class LossConfig:
     w_topple: float = 2.0
     eps: float = 1e-3  # in normalised units (increments are ~1 there)
     relative_to: str = "both"  # "target" (paper: divide by ||x|| + eps) or "both" (||x_hat|| + ||x|| + eps)
+    # Beyond the paper: w_abs * the absolute error in normalised units (L2, L1 for rot), summed over the four
+    # increments. A relative loss gives a fast object's large increment a gradient ~1/||x|| as small as a
+    # resting one's is large, so the few steps that carry most of a hard push's travel are under-weighted.
+    w_abs: float = 0.0
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "LossConfig":
@@ -51,7 +56,7 @@ class LossConfig:
         cfg = cls(**{k: (str(v) if k == "relative_to" else float(v)) for k, v in data.items()})
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")
-        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple) < 0:
+        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs) < 0:
             raise ValueError("loss.eps must be > 0 and the loss weights >= 0")
         return cfg
 
@@ -92,6 +97,9 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
     for name, sl in COMPONENTS:
         fn = relative_l1 if name == "rot" else relative_l2
         per_step[name] = fn(raw[..., sl], target[..., sl], cfg.eps, cfg.relative_to == "both")
+    if cfg.w_abs > 0:
+        per_step["abs"] = sum(safe_l2(raw[..., sl] - target[..., sl]) if name != "rot"
+                              else (raw[..., sl] - target[..., sl]).abs().sum(-1) for name, sl in COMPONENTS)
     per_step["topple"] = F.binary_cross_entropy_with_logits(raw[..., 12], topple.to(raw.dtype), reduction="none")
     if mask is None:
         means = {k: v.mean() for k, v in per_step.items()}
@@ -101,6 +109,8 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
         means = {k: (v * w).sum() / denom for k, v in per_step.items()}
     total = (cfg.w_vel * means["vel"] + cfg.w_angvel * means["angvel"] + cfg.w_pos * means["pos"]
              + cfg.w_rot * means["rot"] + cfg.w_topple * means["topple"])
+    if cfg.w_abs > 0:
+        total = total + cfg.w_abs * means["abs"]
     parts = {k: v.detach() for k, v in means.items()}
     parts["total"] = total.detach()
     return total, parts

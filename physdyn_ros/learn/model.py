@@ -49,6 +49,11 @@ class ModelConfig:
     mlp_layers: int = 5  # fully connected layers of the MLP baseline (incl. output)
     mlp_activation: str = "tanh"
     forget_bias: float = 1.0  # TF LSTMCell default, used by the original
+    # A linear map from the step's normalised [v, w] straight to the outputs, added to the recurrent head (zero at
+    # start). d_pos ~ v dt and d_rot ~ w dt are linear in the input, but a head on tanh-bounded LSTM states
+    # learns large increments slowly: without it the shipped model predicted a third of a 2 m/s push's
+    # per-step travel even with the true velocity fed (the paper has no such path; model_paper.yaml keeps it off).
+    input_skip: bool = False
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 
     def __post_init__(self) -> None:
@@ -113,13 +118,14 @@ def _reorder_gates(w: Tensor) -> Tensor:
 
 
 def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], w_h: List[Tensor],
-                  bias: List[Tensor], w_out: Tensor, b_out: Tensor, gain: Tensor,
+                  bias: List[Tensor], w_out: Tensor, b_out: Tensor, w_skip: Tensor, gain: Tensor,
                   steps: int) -> Tuple[Tensor, Tensor]:
     """Closed-loop LSTM roll-out, compiled by TorchScript: ~25 tensor ops per step and no Python in the loop.
 
     x0 (B, 6): normalised [v, w] at frame 0. x_obs (B, K, 6): observed inputs for frames 1..K ("steps in"),
     used instead of the model's own. const0 (B, 4H): layer-0 bias plus the (constant) shape-feature term.
-    Weights are transposed with gates ordered (i, f, o, g). gain (6,): normalised output -> input increment.
+    Weights are transposed with gates ordered (i, f, o, g). w_skip (6, 13) maps the step's input to the outputs
+    (input_skip), or is empty (0, 13) without one. gain (6,): normalised output -> input increment.
     Returns raw outputs (B, steps, 13) and the inputs actually used (B, steps + 1, 6).
     """
     batch = x0.shape[0]
@@ -143,6 +149,8 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
             hs[layer] = s[:, 2 * hidden:h3] * torch.tanh(c)
             inp = hs[layer]
         y = torch.addmm(b_out, inp, w_out)
+        if w_skip.shape[0] > 0:
+            y = torch.addmm(y, x, w_skip)
         outs.append(y)
         if t < x_obs.shape[1]:
             x = x_obs[:, t]
@@ -194,6 +202,7 @@ class DynamicsModel(nn.Module):
             for a, b in zip(dims[:-1], dims[1:]):
                 layers += [nn.Linear(a, b), act()]
             self.mlp = nn.Sequential(*layers, nn.Linear(dims[-1], OUT_DIM))
+        self.skip = nn.Linear(6, OUT_DIM, bias=False) if cfg.input_skip else None
         self.register_buffer("scales", torch.ones(len(STAT_KEYS)))
         self._reset_parameters()
         if stats is not None:
@@ -214,6 +223,8 @@ class DynamicsModel(nn.Module):
             h = self.cfg.hidden_size
             for layer in range(self.cfg.num_layers):
                 getattr(self.lstm, f"bias_ih_l{layer}").data[h:2 * h] = self.cfg.forget_bias
+        if self.skip is not None:
+            nn.init.zeros_(self.skip.weight)  # start as the paper's network; the path grows where it helps
 
     def set_normalization(self, stats: dict[str, float]) -> None:
         missing = [k for k in STAT_KEYS if k not in stats]
@@ -264,7 +275,10 @@ class DynamicsModel(nn.Module):
                 w_h.append(_reorder_gates(getattr(self.lstm, f"weight_hh_l{layer}")).t().contiguous())
                 bias.append(_reorder_gates(getattr(self.lstm, f"bias_ih_l{layer}")
                                            + getattr(self.lstm, f"bias_hh_l{layer}")))
-            fast.update(w_x=w_x, w_h=w_h, bias=bias, w_out=self.head.weight.t().contiguous(), b_out=self.head.bias)
+            w_skip = (self.skip.weight.t().contiguous() if self.skip is not None
+                      else self.head.weight.new_zeros(0, OUT_DIM))
+            fast.update(w_x=w_x, w_h=w_h, bias=bias, w_out=self.head.weight.t().contiguous(), b_out=self.head.bias,
+                        w_skip=w_skip)
         return fast
 
     # --------------------------------------------------------------------------------------------- pieces
@@ -291,9 +305,8 @@ class DynamicsModel(nn.Module):
         """Raw outputs (B, T, 13) with the given (ground-truth) velocities (B, T, 3) fed at every step."""
         x = self._inputs(vel, angvel)
         x = torch.cat([x, feature[:, None, :].expand(-1, x.shape[1], -1)], -1)
-        if self.cfg.cell == "lstm":
-            return self.head(self.lstm(x)[0])
-        return self.mlp(x)
+        y = self.head(self.lstm(x)[0]) if self.cfg.cell == "lstm" else self.mlp(x)
+        return y if self.skip is None else y + self.skip(x[..., :6])
 
     def rollout_raw(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                     obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
@@ -313,10 +326,12 @@ class DynamicsModel(nn.Module):
             w_x = fast["w_x"]
             const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])  # the feature term is constant in time
             return _lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
-                                 fast["w_out"], fast["b_out"], fast["gain"], int(steps))
+                                 fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
         x, outs, xs = x0, [], [x0]
         for t in range(steps):  # the MLP baseline is not latency critical
             y = self.mlp(torch.cat([x, feature], -1))
+            if self.skip is not None:
+                y = y + self.skip(x)
             outs.append(y)
             x = x_obs[:, t] if t < x_obs.shape[1] else x + y[:, :6] * fast["gain"]
             xs.append(x)
