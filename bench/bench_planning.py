@@ -41,13 +41,14 @@ def trials(n: int, seed: int) -> list[dict]:
     return out
 
 
-def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float) -> dict:
+def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
+        max_topple: float = 0.2) -> dict:
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning.closed_loop import push_to_goal
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
 
-    planner = PushPlanner(model, PlannerConfig(time_budget=budget))
+    planner = PushPlanner(model, PlannerConfig(time_budget=budget, max_topple_probability=max_topple))
     planner.warm_up()
     first, final, times, toppled, refused = [], [], [], 0, 0
     t0 = time.monotonic()
@@ -81,6 +82,7 @@ def main() -> int:
     ap.add_argument("--budget", type=float, default=0.5, help="planning time budget per push, s")
     ap.add_argument("--friction", type=float, default=0.5, help="true friction of the simulated table")
     ap.add_argument("--friction-error", type=float, default=0.2, help="pybullet planner: relative friction error")
+    ap.add_argument("--max-topple", type=float, default=0.2, help="planner max_topple_probability")
     ap.add_argument("--skip-pybullet", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
@@ -94,11 +96,11 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     cases = trials(args.trials, args.seed)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
-                   args.friction)]
+                   args.friction, args.max_topple)]
     if not args.skip_pybullet:
         with PybulletModel(friction=args.friction * (1 + args.friction_error)) as pb:
             results.append(run(pb, f"pybullet hull, mu +{100 * args.friction_error:.0f}%", cases, args.max_pushes,
-                               args.budget, args.friction))
+                               args.budget, args.friction, args.max_topple))
     print(f"\n{args.trials} trials (goal 8-22 cm away, yaw change up to 45 deg; success: within 2 cm and 10 deg, "
           f"upright); planning budget {args.budget} s per push, {args.threads} thread(s)")
     print(f"| planner model | success, 1 push | success, <= {args.max_pushes} pushes | planning time per push "
