@@ -133,6 +133,16 @@ def test_wrap_and_yaw_helpers():
     assert float(yaw_of(q)) == pytest.approx(0.7)
 
 
+def test_final_speed_comes_from_the_last_displacement():
+    from physdyn_ros.planning.planner import final_speed
+
+    pos = np.zeros((2, 5, 3))
+    pos[0, :, 0] = [0.0, 0.02, 0.03, 0.03, 0.03]  # at rest over the last step
+    pos[1, :, 1] = [0.0, 0.01, 0.02, 0.03, 0.05]  # still moving 2 cm per step
+    pos[:, :, 2] = [[0.0, 0.0, 0.0, 0.0, 0.01]] * 2  # vertical motion (a wobble) does not count
+    np.testing.assert_allclose(final_speed(pos, 0.1), [0.0, 0.2], atol=1e-12)
+
+
 # ------------------------------------------------------------------------------------- learned model paths
 @pytest.fixture(scope="module")
 def tiny_predictor(tmp_path_factory):

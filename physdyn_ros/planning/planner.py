@@ -52,6 +52,16 @@ class PlanningError(ValueError):
     """The request cannot be planned; the message says why (bad input, unreachable goal, every push topples)."""
 
 
+def final_speed(positions: np.ndarray, dt: float) -> np.ndarray:
+    """Horizontal speed (B,) over the last step of trajectories (B, T, 3), from the displacement.
+
+    Not the fed-back velocity: the learned model's velocity channel can keep an offset after its predicted pose
+    has stopped (0.25 m/s measured on a 0.5 m/s push whose positions were at rest), which made every short
+    corrective push look unfinished to the planner.
+    """
+    return np.linalg.norm(positions[:, -1, :2] - positions[:, -2, :2], axis=-1) / dt
+
+
 def wrap_angle(a: Union[float, np.ndarray]) -> Union[float, np.ndarray]:
     """Angle(s) wrapped into [-pi, pi)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi if isinstance(a, np.ndarray) else \
@@ -460,10 +470,7 @@ class _Search:
         yaw = self.start.yaw + yaw_of(batch.orientations[:, -1])
         yaw_err = np.abs(wrap_angle(yaw - g.pose.yaw))
         topple = batch.topple_prob.max(axis=1)
-        # "Still moving" from the last step's displacement, not the velocity channel: the learned model's fed-back
-        # velocity can keep a small offset after its predicted pose has stopped (measured: 0.25 m/s left on
-        # 0.5 m/s pushes whose positions were at rest), which made every corrective push look unfinished.
-        speed_end = np.linalg.norm(batch.positions[:, -1, :2] - batch.positions[:, -2, :2], axis=1) / self.model.dt
+        speed_end = final_speed(batch.positions, float(self.model.dt))
         cost = (pos_err / g.position_tolerance) ** 2 + (speed_end / MOVING_SCALE) ** 2 + 2.0 * topple
         if not g.ignores_yaw:
             cost = cost + (yaw_err / g.yaw_tolerance) ** 2
