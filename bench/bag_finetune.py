@@ -15,6 +15,7 @@ Prints the before / after table (final position / rotation error after 4 s, roll
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import os
@@ -135,7 +136,8 @@ def main() -> int:
     physdyn("evaluate", "--checkpoint", args.model, "--data", str(ds), "--split", "test", "--baselines",
             "--out", str(out / "eval_before"), "--threads", "2")
     t1 = time.monotonic()
-    ft = out / "finetune"
+    # one fine-tuning run per starting model: a run folder fine-tuned from another model is never reused
+    ft = out / f"finetune_{hashlib.sha256(Path(args.model).read_bytes()).hexdigest()[:12]}"
     if not (ft / "model_best.pt").exists():
         physdyn("train", "--init", args.model, "--data", str(ds), "--out", str(ft), "--max-epochs", str(args.epochs),
                 "--set", f"train.lr={args.lr}", "--set", "train.batch_size=32", "--set", "train.val_rollout_horizon=60",
@@ -145,7 +147,8 @@ def main() -> int:
             "--baselines", "--out", str(out / "eval_after"), "--threads", "2")
     before, after = summary(out / "eval_before"), summary(out / "eval_after")
     print(f"\nheld-out test pushes of the session (friction {args.friction}, unseen shapes): {before['n']} "
-          f"roll-outs without toppling; recording {t_rec:.0f} s, fine-tuning {t_ft:.0f} s ({args.epochs} epochs)")
+          f"roll-outs without toppling; recording {t_rec:.0f} s, fine-tuning {t_ft:.0f} s ({args.epochs} epochs; "
+          "0 s: reused from an earlier run)")
     print("| model | final position cm (median / p90) | final rotation deg (median / p90) | roll-out P cm/step "
           "| roll-out theta deg/step |")
     print("|---|---|---|---|---|")
