@@ -211,3 +211,15 @@ def test_fine_tune_starts_from_the_init_checkpoint(overfit_run, tmp_path):
         train(tiny_config(model={"hidden_size": 8}), tiny_dataset(), tmp_path / "ft2", progress=False, init=str(init))
     with pytest.raises(ValueError, match="cannot be combined with --resume"):
         train(cfg, tiny_dataset(), tmp_path / "ft3", resume=str(init), init=str(init), progress=False)
+
+
+def test_shipped_options_train_the_skip_path_and_the_loss_falls(tmp_path):
+    """input_skip + w_abs (config/model_default.yaml): the zero-initialised skip learns, the loss falls."""
+    cfg = tiny_config(model={"input_skip": True}, loss={"w_abs": 2.0, "relative_to": "target", "eps": 0.1},
+                      data={"max_train_sims": 6},
+                      train={"epochs": 40, "batch_size": 6, "val_every": 40, "lr": 0.01, "rollout_fraction": 0.5})
+    train(cfg, tiny_dataset(), tmp_path / "r", progress=False)
+    records = log(tmp_path / "r")
+    assert records[-1]["train_abs"] < 0.7 * records[0]["train_abs"], (records[0], records[-1])
+    skip = load_checkpoint(tmp_path / "r" / "model_best.pt")["model"]["skip.weight"]
+    assert skip.shape == (13, 6) and skip.abs().max() > 1e-3
