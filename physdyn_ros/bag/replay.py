@@ -17,6 +17,8 @@ from rosbags.rosbag2 import Reader
 
 #: Publisher queue depth: deep enough that a burst is never overwritten before the middleware sends it.
 PUB_DEPTH = 1000
+#: Longest wait, per topic, for subscribers to acknowledge the last messages before the replay returns.
+ACK_TIMEOUT_S = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +39,7 @@ def _topic(name: str) -> str:
 def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, delay: float = 2.0,
            start: float = 0.0, node=None, log=print) -> dict:
     """Publish the bag (rclpy must be initialised; `node` None creates one). Returns counts and timing."""
+    from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     from ..nodes.recorder_node import message_class
@@ -104,6 +107,10 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
                 publishers[conn.topic].publish(bytes(data))
                 count += 1
             elapsed = time.monotonic() - wall0 if wall0 is not None else 0.0
+            # A reliable writer destroyed right after its last publish can take that message with it (measured:
+            # the last of 40 states lost now and then): wait, bounded, until the subscribers acknowledged all.
+            for pub in publishers.values():
+                pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
     finally:
         if own:
             node.destroy_node()
