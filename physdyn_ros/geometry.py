@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from .conventions import TOPPLE_ANGLE
+
 __all__ = [
     "quat_normalize", "quat_multiply", "quat_conjugate", "quat_inverse", "quat_rotate", "quat_to_matrix",
     "matrix_to_quat", "axis_angle_to_quat", "quat_to_axis_angle", "quat_angle_between", "quat_compose_scan",
     "axis_angle_to_matrix", "matrix_compose_scan",
-    "yaw_matrix", "yaw_quat", "rotate_yaw", "canonical_heading", "up_tilt_angle",
+    "yaw_matrix", "yaw_quat", "rotate_yaw", "canonical_heading", "topple_labels", "up_tilt_angle",
 ]
 
 
@@ -182,6 +184,20 @@ def rotate_yaw(v: np.ndarray, psi: np.ndarray | float) -> np.ndarray:
     c, s = np.cos(psi), np.sin(psi)
     x, y = v[..., 0], v[..., 1]
     return np.stack([c * x - s * y, s * x + c * y, np.broadcast_to(v[..., 2], np.broadcast(x, c).shape)], -1)
+
+
+def topple_labels(quat: np.ndarray, angle: float = TOPPLE_ANGLE) -> tuple[np.ndarray, int]:
+    """Per-frame toppled flags (T,) of an orientation sequence (T, 4) and the first toppled frame (-1: none).
+
+    A frame counts once the up axis tilts more than `angle`; from then on the object stays toppled.
+    """
+    q = _f64(quat)
+    over = up_tilt_angle(q / np.linalg.norm(q, axis=-1, keepdims=True)) > angle
+    first = int(np.argmax(over)) if over.any() else -1
+    toppled = np.zeros(len(over), dtype=bool)
+    if first >= 0:
+        toppled[first:] = True
+    return toppled, first
 
 
 def up_tilt_angle(q: np.ndarray) -> np.ndarray:

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from ..conventions import DT, NUM_POINTS, TOPPLE_ANGLE
+from .. import geometry as geo
+from ..conventions import DT, NUM_POINTS
 from .types import deserialize
 
 NS = 1_000_000_000
@@ -117,45 +118,6 @@ def _q(o) -> list[float]:
     return [float(o.x), float(o.y), float(o.z), float(o.w)]
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) x, y, z, w -> (..., 3, 3)."""
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
-    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], -1)
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    return np.asarray(q, dtype=np.float64) * np.array([-1.0, -1.0, -1.0, 1.0])
-
-
-def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad) between orientations (..., 4)."""
-    d = np.abs(np.sum(np.asarray(a, float) * np.asarray(b, float), axis=-1))
-    d /= np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
-
-
-def tilt(quat: np.ndarray) -> np.ndarray:
-    """Angle (rad) between the object's up axis and the table's up axis."""
-    return np.arccos(np.clip(quat_to_matrix(quat)[..., 2, 2], -1.0, 1.0))
-
-
-def yaw(quat: np.ndarray) -> np.ndarray:
-    r = quat_to_matrix(quat)
-    return np.arctan2(r[..., 1, 0], r[..., 0, 0])
-
-
 def _continuous(quat: np.ndarray) -> np.ndarray:
     """Flip signs so consecutive quaternions lie in the same hemisphere."""
     q = np.array(quat, dtype=np.float64)
@@ -178,17 +140,6 @@ def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
     b = np.where(small[:, None], w, np.sin(w * theta) / np.where(small[:, None], 1.0, sin))
     out[:] = a * q0 + b * q1
     return out / np.linalg.norm(out, axis=1, keepdims=True)
-
-
-def rotvec_from_quat(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (axis * angle) of quaternions (..., 4), angle in [0, pi]."""
-    q = np.asarray(q, dtype=np.float64)
-    q = np.where(q[..., 3:4] < 0, -q, q)
-    v = q[..., :3]
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, q[..., 3])
-    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
-    return v * scale[..., None]
 
 
 # ------------------------------------------------------------------------------------------------- the bag
@@ -250,7 +201,8 @@ def load_session(bag: str | Path, state_topic: str | None = None, twist_topic: s
                     if object_id is not None and msg.child_frame_id != object_id:
                         continue
                     pose = msg.pose.pose
-                    rot = quat_to_matrix(np.array(_q(pose.orientation)))
+                    q = np.array(_q(pose.orientation))
+                    rot = geo.quat_to_matrix(q / np.linalg.norm(q))
                     lin = (rot @ np.array(_xyz(msg.twist.twist.linear))).tolist()  # child frame -> table frame
                     ang = (rot @ np.array(_xyz(msg.twist.twist.angular))).tolist()
                 else:
@@ -365,8 +317,8 @@ def finite_difference_velocities(pos: np.ndarray, quat: np.ndarray, dt: float) -
     hi = np.concatenate([[1], np.arange(2, n), [n - 1]])
     span = (hi - lo) * dt
     lin = (pos[hi] - pos[lo]) / span[:, None]
-    rel = quat_mul(quat[hi], quat_conj(quat[lo]))  # rotation from lo to hi, world frame
-    ang = rotvec_from_quat(rel) / span[:, None]
+    rel = geo.quat_multiply(quat[hi], geo.quat_conjugate(quat[lo]))  # rotation from lo to hi, world frame
+    ang = geo.quat_to_axis_angle(rel) / span[:, None]
     return lin, ang
 
 
@@ -443,7 +395,7 @@ def _onsets(st: States, onset_speed: float, onset_spin: float, rest_frames: int,
     """
     dt = np.diff(st.t).astype(np.float64) / NS
     step = np.linalg.norm(np.diff(st.pos, axis=0), axis=1)
-    turn = quat_angle(st.quat[1:], st.quat[:-1])
+    turn = geo.quat_angle_between(st.quat[1:], st.quat[:-1])
     moving = (step / dt > onset_speed) | (turn / dt > onset_spin)
     out, still_since, k = [], int(st.t[0]), 0
     while k < len(moving):
@@ -455,7 +407,8 @@ def _onsets(st: States, onset_speed: float, onset_spin: float, rest_frames: int,
             end += 1
         travel = np.linalg.norm(st.pos[end] - st.pos[k])
         rested = st.t[k] - still_since >= rest_frames * DT_NS
-        if rested and end - k >= min_steps and (travel >= min_travel or quat_angle(st.quat[end], st.quat[k]) >= min_turn):
+        turned = geo.quat_angle_between(st.quat[end], st.quat[k])
+        if rested and end - k >= min_steps and (travel >= min_travel or turned >= min_turn):
             out.append(int(st.t[k]))
         still_since, k = int(st.t[end]), end
     return out
@@ -493,11 +446,7 @@ def push_frames(session: Session, push: Push, num_frames: int, rest_lin_vel: flo
     n = min(length, avail)
     out["pos"][:n], out["quat"][:n], out["lin_vel"][:n], out["ang_vel"][:n] = pos[:n], quat[:n], lin[:n], ang[:n]
     out["pos"][n:], out["quat"][n:] = pos[n - 1], quat[n - 1]  # rest padding: rest pose, zero velocities
-    over = tilt(out["quat"]) > TOPPLE_ANGLE
-    topple_index = int(np.argmax(over)) if over.any() else -1
-    toppled = np.zeros(num_frames, dtype=bool)
-    if topple_index >= 0:
-        toppled[topple_index:] = True
+    toppled, topple_index = geo.topple_labels(out["quat"])
     res = {k: v.astype(np.float32) for k, v in out.items()}
     res.update(toppled=toppled, length=np.int32(length), topple_index=np.int32(topple_index))
     return res
@@ -514,7 +463,7 @@ def object_points(session: Session, push: Push, num_points: int = NUM_POINTS, se
     s = sample(session.states, np.array([push.cloud.t]))
     if not s["valid"][0]:
         raise ValueError("the cloud's stamp lies outside the recorded states")
-    rot = quat_to_matrix(s["quat"][0])
+    rot = geo.quat_to_matrix(s["quat"][0])
     pts = (push.cloud.points - s["pos"][0]) @ rot  # world -> object frame: R^T (p - c)
     m = len(pts)
     rng = np.random.default_rng(seed)

@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import geometry as geo
 from ..conventions import TOPPLE_ANGLE
-from .pushes import NS, Session, find_pushes, load_session, quat_angle, sample, tilt
+from .pushes import NS, Session, find_pushes, load_session, sample
 
 MAX_PLOTS = 48
 
@@ -48,7 +49,8 @@ def evaluate(session: Session) -> list[dict]:
                      "rest_after": None if push.rest is None else (push.rest - push.t0) / NS}
         start, settled = sample(st, np.array([push.t0, push.settled]))["pos"]
         row["observed_displacement"] = float(np.linalg.norm(settled - start))
-        row["observed_toppled"] = bool(tilt(sample(st, np.array([push.settled]))["quat"])[0] > TOPPLE_ANGLE)
+        settled = sample(st, np.array([push.settled]))["quat"]
+        row["observed_toppled"] = bool(geo.up_tilt_angle(settled)[0] > TOPPLE_ANGLE)
         p = push.prediction
         row["predicted"] = p is not None
         if p is None:
@@ -68,7 +70,7 @@ def evaluate(session: Session) -> list[dict]:
         obs = sample(st, np.array([t_eval]))
         err = p.pos[-1] - obs["pos"][0]
         row.update(position_error=float(np.linalg.norm(err)), planar_error=float(np.linalg.norm(err[:2])),
-                   rotation_error_deg=float(np.degrees(quat_angle(p.quat[-1], obs["quat"][0]))),
+                   rotation_error_deg=float(np.degrees(geo.quat_angle_between(p.quat[-1], obs["quat"][0]))),
                    predicted_displacement=float(np.linalg.norm(p.pos[-1] - p.pos[0])),
                    predicted_toppled=bool(np.max(p.topple) > 0.5) if len(p.topple) else False)
         rows.append(row)

@@ -7,6 +7,7 @@ import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, Pose, Quaternion, Twist, Vector3
 
+from .. import geometry as geo
 from ..conventions import TOPPLE_ANGLE
 
 NS_PER_S = 1_000_000_000
@@ -95,12 +96,7 @@ def twist_to_numpy(t: Twist) -> tuple[np.ndarray, np.ndarray]:
 # -------------------------------------------------------------------------------------------------- rotations
 def quat_to_matrix(q) -> np.ndarray:
     """Rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = np.asarray(q, dtype=np.float64).reshape(4)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return geo.quat_to_matrix(np.asarray(q, dtype=np.float64).reshape(4))
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:

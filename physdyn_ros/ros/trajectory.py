@@ -14,6 +14,7 @@ from nav_msgs.msg import Path
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from .. import geometry as geo
 from ..msg import ObjectState, PredictedTrajectory
 from .convert import (duration_from_sec, duration_to_sec, is_toppled, ns_to_time, point, pose, pose_to_numpy,
                       time_to_ns, twist)
@@ -64,17 +65,6 @@ def msg_to_path(msg: PredictedTrajectory) -> Path:
                 poses=[PoseStamped(header=s.header, pose=s.pose) for s in msg.states])
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return np.array([-q[0], -q[1], -q[2], q[3]])
-
-
 def trajectory_markers(msg: PredictedTrajectory, half_extents=None, heading: float = 0.0,
                        box_every: int = 10) -> MarkerArray:
     """DELETEALL, then a LINE_STRIP through the predicted centres (ns PATH_NS, id 0), then CUBE markers with the
@@ -94,7 +84,7 @@ def trajectory_markers(msg: PredictedTrajectory, half_extents=None, heading: flo
     if half_extents is not None and msg.states:
         size = 2.0 * np.asarray(half_extents, dtype=np.float64).reshape(3)
         _, q0 = pose_to_numpy(msg.states[0].pose, zero_is_identity=True)
-        box_in_body = _quat_mul(_quat_conj(q0), np.array([0.0, 0.0, np.sin(heading / 2), np.cos(heading / 2)]))
+        box_in_body = geo.quat_multiply(geo.quat_conjugate(q0), geo.yaw_quat(heading))
         last = len(msg.states) - 1
         steps = sorted(set(range(0, last + 1, max(1, int(box_every)))) | {last})
         for k in steps:
@@ -105,7 +95,7 @@ def trajectory_markers(msg: PredictedTrajectory, half_extents=None, heading: flo
                           scale=Vector3(x=size[0], y=size[1], z=size[2]),
                           color=ColorRGBA(r=0.2 + 0.8 * p, g=0.4 * (1 - p), b=1.0 - p, a=0.35 if k < last else 0.7))
             cube.pose.position = point(pos)
-            qb = _quat_mul(q, box_in_body)
+            qb = geo.quat_multiply(q, box_in_body)
             cube.pose.orientation.x, cube.pose.orientation.y, cube.pose.orientation.z, cube.pose.orientation.w = (
                 float(c) for c in qb / np.linalg.norm(qb))
             markers.append(cube)

@@ -15,9 +15,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..conventions import TOPPLE_ANGLE
+from .. import geometry as geo
 from ..shapes.core import Shape, shape_from_points
-from .simulator import SimConfig, Simulator, quat_to_matrix, tilt_angle
+from .simulator import SimConfig, Simulator, quat_to_matrix
 
 #: Default frames per simulation: 5 s at 15 Hz plus frame 0 (>= 61 frames are needed for 4 s roll-outs).
 NUM_FRAMES: int = 76
@@ -85,12 +85,7 @@ def record(sim: Simulator, num_frames: int = NUM_FRAMES) -> dict[str, np.ndarray
             rec["lin_vel"][r + 1:] = 0.0
             rec["ang_vel"][r + 1:] = 0.0
             break
-    tilt = tilt_angle(rec["quat"])
-    over = tilt > TOPPLE_ANGLE
-    topple_index = int(np.argmax(over)) if over.any() else -1
-    toppled = np.zeros(num_frames, dtype=bool)
-    if topple_index >= 0:
-        toppled[topple_index:] = True
+    toppled, topple_index = geo.topple_labels(rec["quat"])
     out = {k: v.astype(np.float32) for k, v in rec.items()}
     out.update(toppled=toppled, length=np.int32(length), topple_index=np.int32(topple_index))
     return out
