@@ -20,12 +20,14 @@ The norm's gradient at 0 is defined as 0, so identical prediction and target giv
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from .sections import known_keys
 
 #: (name, slice of the 12 normalised increments)
 COMPONENTS = (("vel", slice(0, 3)), ("angvel", slice(3, 6)), ("pos", slice(6, 9)), ("rot", slice(9, 12)))
@@ -49,10 +51,7 @@ class LossConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "LossConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown loss config keys: {unknown} (known: {sorted(known)})")
+        data = known_keys(cls, data, "loss")
         cfg = cls(**{k: (str(v) if k == "relative_to" else float(v)) for k, v in data.items()})
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")

@@ -16,11 +16,13 @@ running statistics to drift between random training windows and evaluation, and 
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any, List, Optional, Tuple
 
 import torch
 from torch import Tensor, nn
+
+from .sections import known_keys
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
 OUT_DIM = 13
@@ -73,11 +75,7 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown model config keys: {unknown} (known: {sorted(known)})")
-        return cls(**data)
+        return cls(**known_keys(cls, data, "model"))
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

@@ -24,7 +24,7 @@ import os
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -34,6 +34,7 @@ import yaml
 
 from .checkpoint import CheckpointError, load_checkpoint, restore_rng, save_checkpoint
 from .losses import LossConfig, dynamics_loss
+from .sections import known_keys
 from .model import DynamicsModel, ModelConfig, count_parameters
 
 
@@ -83,12 +84,7 @@ class DataConfig:
 
 
 def _section(cls: type, data: Optional[dict[str, Any]], name: str) -> Any:
-    data = dict(data or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"unknown {name} config keys: {unknown} (known: {sorted(known)})")
-    return cls(**data)
+    return cls(**known_keys(cls, data or {}, name))
 
 
 def resolve_config(raw: dict[str, Any]) -> dict[str, Any]:
