@@ -53,8 +53,9 @@ class ModelConfig:
     forget_bias: float = 1.0  # TF LSTMCell default, used by the original
     # A linear map from the step's normalised [v, w] straight to the outputs, added to the recurrent head (zero at
     # start). d_pos ~ v dt and d_rot ~ w dt are linear in the input, but a head on tanh-bounded LSTM states
-    # learns large increments slowly: without it the shipped model predicted a third of a 2 m/s push's
-    # per-step travel even with the true velocity fed (the paper has no such path; model_paper.yaml keeps it off).
+    # learns large increments slowly: without it the first shipped model predicted 12.6 cm of travel for
+    # 1.2-2 m/s pushes that slid 27.4 cm, even with the true velocities fed (bench/speed_bins.py). The paper has
+    # no such path; model_paper.yaml keeps it off.
     input_skip: bool = False
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 
