@@ -1,7 +1,11 @@
 """``physdyn up``: start the node suite (sim, perception, predictor) as subprocesses with one params file.
 
 The same nodes, names and params file as launch/physdyn.launch.py, for machines without `ros2 launch`:
-    python -m physdyn_ros.nodes.<executable> --ros-args --params-file <config> [-p name:=value ...]
+    python -m physdyn_ros.nodes.<executable> --ros-args --params-file <config> [--params-file <overrides>]
+A user's overrides (--param NODE:NAME:=VALUE, --model, --real-time-factor ...) go into a second params file
+under the node's own section, because rclpy ranks a node's section of a params file above `-p name:=value`
+(which applies to `/**`): passed as -p they were silently dropped for every name that config/suite.yaml sets.
+An override of a parameter the node does not have is refused before anything starts.
 Each node's output is forwarded line by line with its name in front (or written to a log folder). Ctrl-C or
 SIGTERM is forwarded to every node as SIGINT (rclpy shuts down cleanly on it). If a node exits during start-up
 or later, the others are stopped and the command exits non-zero, naming the node and its exit code.
@@ -13,10 +17,13 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import IO, Sequence
+from typing import IO, Any, Sequence
+
+import yaml
 
 #: (node name, executable) in start order; the executable is the module physdyn_ros.nodes.<executable>, the
 #: installed script lib/physdyn_ros/<executable> (ros2 run / launch) and the launch file's `executable`.
@@ -25,6 +32,8 @@ NODES: tuple[tuple[str, str], ...] = (("sim", "sim_node"), ("perception", "perce
 CONFIG_NAME = "suite.yaml"
 #: A node logs "<name>]: ready: ..." once it serves (model loaded and warmed up, object spawned).
 READY_MARK = "]: ready:"
+#: Parameters of the shipped params file's shared section (/**) that a node does not declare.
+NOT_DECLARED = {"sim": {"model_path"}}
 
 
 def default_config() -> Path:
@@ -33,11 +42,58 @@ def default_config() -> Path:
     return config_path(CONFIG_NAME)
 
 
-def node_command(executable: str, params_file: Path, overrides: Sequence[str] = (),
+def known_parameters(node: str) -> dict[str, Any]:
+    """Name -> default of every parameter `node` declares, from the shipped params file (which lists them all:
+    test_ros_launch.py compares it with the running nodes), plus rclpy's own two."""
+    config = yaml.safe_load(default_config().read_text())
+    params = dict(config["/**"]["ros__parameters"])
+    for name in NOT_DECLARED.get(node, ()):
+        params.pop(name, None)
+    params.update(config[f"/{node}"]["ros__parameters"])
+    params.setdefault("use_sim_time", False)  # rclpy's own, on every node
+    params.setdefault("start_type_description_service", True)
+    return params
+
+
+def parse_overrides(node: str, assignments: Sequence[str]) -> dict[str, Any]:
+    """["name:=value", ...] -> {name: value}; values are YAML as with -p, and an integer given for a
+    floating-point parameter becomes a float (0 for real_time_factor 0.0). ValueError names a bad assignment
+    or a parameter the node does not have."""
+    known = known_parameters(node)
+    out: dict[str, Any] = {}
+    for item in assignments:
+        name, sep, text = item.partition(":=")
+        name = name.strip()
+        if not sep or not name:
+            raise ValueError(f"parameter override {item!r} of node '{node}': use NAME:=VALUE")
+        if name not in known:
+            raise ValueError(f"node '{node}' has no parameter '{name}'; its parameters are: "
+                             f"{', '.join(sorted(known))}")
+        try:
+            value = yaml.safe_load(text) if text.strip() else ""
+        except yaml.YAMLError as exc:
+            raise ValueError(f"parameter override {item!r} of node '{node}': value is not valid YAML ({exc})")
+        default = known[name]
+        if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        elif isinstance(default, list) and default and isinstance(default[0], float) and isinstance(value, list):
+            value = [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
+        out[name] = value
+    return out
+
+
+def write_overrides(node: str, values: dict[str, Any], folder: Path) -> Path:
+    """A params file with `values` in `node`'s own section (given after the main one, so it wins)."""
+    path = folder / f"{node}_overrides.yaml"
+    path.write_text(yaml.safe_dump({f"/{node}": {"ros__parameters": values}}, default_flow_style=None))
+    return path
+
+
+def node_command(executable: str, params_file: Path, overrides_file: Path | None = None,
                  log_level: str | None = None) -> list[str]:
     cmd = [sys.executable, "-m", f"physdyn_ros.nodes.{executable}", "--ros-args", "--params-file", str(params_file)]
-    for o in overrides:
-        cmd += ["-p", o]
+    if overrides_file is not None:
+        cmd += ["--params-file", str(overrides_file)]
     if log_level:
         cmd += ["--log-level", log_level]
     return cmd
@@ -89,6 +145,12 @@ class Suite:
         if unknown:
             raise ValueError(f"unknown node(s) {unknown}; the suite has {[n for n, _ in NODES]}")
         self.nodes = [(n, e) for n, e in NODES if n in wanted]
+        stray = sorted(set(self.overrides) - {n for n, _ in NODES})
+        if stray:
+            raise ValueError(f"parameter overrides for unknown node(s) {stray}")
+        # Parsed and checked now: a bad override stops everything before a node starts.
+        self.values = {n: parse_overrides(n, self.overrides[n]) for n, _ in self.nodes if self.overrides.get(n)}
+        self._tmp: tempfile.TemporaryDirectory | None = None
         self.log_dir, self.log_level = log_dir, log_level
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
@@ -98,6 +160,8 @@ class Suite:
         self._files: list[IO[str]] = []
 
     def start(self) -> "Suite":
+        if self.values:
+            self._tmp = tempfile.TemporaryDirectory(prefix="physdyn_up_")
         for name, exe in self.nodes:
             if self.log_dir is not None:
                 self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -105,7 +169,8 @@ class Suite:
                 self._files.append(out)
             else:
                 out = sys.stdout
-            cmd = node_command(exe, self.config, self.overrides.get(name, ()), self.log_level)
+            extra = write_overrides(name, self.values[name], Path(self._tmp.name)) if name in self.values else None
+            cmd = node_command(exe, self.config, extra, self.log_level)
             self.procs.append(NodeProcess(name, cmd, out, self.env))
         return self
 
@@ -146,6 +211,9 @@ class Suite:
         for f in self._files:
             f.close()
         self._files.clear()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
         return {p.name: p.poll() for p in self.procs}
 
     def __enter__(self) -> "Suite":

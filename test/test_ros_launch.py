@@ -15,7 +15,7 @@ import yaml
 from rclpy.parameter import Parameter
 
 from conftest import PYTHON, ROOT
-from physdyn_ros.launcher import CONFIG_NAME, NODES, node_command
+from physdyn_ros.launcher import CONFIG_NAME, NODES, Suite, known_parameters, node_command
 from test_nodes_support import tiny_model  # noqa: F401 - fixture
 
 LAUNCH = ROOT / "launch" / "physdyn.launch.py"
@@ -69,6 +69,50 @@ def test_launch_file_starts_what_the_launcher_starts():
         assert node_command(exe, CONFIG)[1:3] == ["-m", f"physdyn_ros.nodes.{exe}"]
 
 
+def _remote_parameters(node_name: str, names: list[str], timeout: float = 20.0) -> dict:
+    """Values of a running node's parameters, asked over DDS through its get_parameters service."""
+    import rclpy
+    from rclpy.parameter import parameter_value_to_python
+    from rcl_interfaces.srv import GetParameters
+
+    client_node = rclpy.create_node(f"param_probe_{uuid.uuid4().hex[:6]}")
+    try:
+        cli = client_node.create_client(GetParameters, f"/{node_name}/get_parameters")
+        assert cli.wait_for_service(timeout_sec=timeout), f"{node_name} has no parameter service"
+        future = cli.call_async(GetParameters.Request(names=names))
+        rclpy.spin_until_future_complete(client_node, future, timeout_sec=timeout)
+        assert future.done(), f"{node_name} did not answer get_parameters"
+        return dict(zip(names, (parameter_value_to_python(v) for v in future.result().values)))
+    finally:
+        client_node.destroy_node()
+
+
+def test_overrides_win_over_the_params_file(rclpy_init, tiny_model, tmp_path):
+    """Issue 14.1: -p overrides lost to the file's node section (real_time_factor stayed 1, horizon 60)."""
+    overrides = {"sim": ["real_time_factor:=0", "rate:=7.5", "category:=cylinder"],
+                 "predictor": [f"model_path:={tiny_model}", "horizon:=30", "plan_time_budget:=1"]}
+    with Suite(overrides=overrides, nodes=["sim", "predictor"], log_dir=tmp_path / "logs") as suite:
+        suite.wait_ready(150)
+        sim = _remote_parameters("sim", ["real_time_factor", "rate", "category", "friction"])
+        pred = _remote_parameters("predictor", ["horizon", "plan_time_budget", "max_feature_age"])
+    assert sim == {"real_time_factor": 0.0, "rate": 7.5, "category": "cylinder", "friction": 0.5}
+    assert pred == {"horizon": 30, "plan_time_budget": 1.0, "max_feature_age": 5.0}
+    assert "horizon 30" in (tmp_path / "logs" / "predictor.log").read_text()
+
+
+def test_unknown_or_malformed_overrides_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="node 'predictor' has no parameter 'horizn'"):
+        Suite(overrides={"predictor": ["horizn:=30"]})
+    with pytest.raises(ValueError, match="use NAME:=VALUE"):
+        Suite(overrides={"sim": ["real_time_factor=0"]})
+    with pytest.raises(ValueError, match="node 'sim' has no parameter 'model_path'"):
+        Suite(overrides={"sim": ["model_path:=x.pt"]})
+    run = subprocess.run([PHYSDYN, "up", "--param", "predictor:horizn:=30", "--log-dir", str(tmp_path)],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode != 0 and "has no parameter 'horizn'" in run.stderr, run.stdout + run.stderr
+    assert not list(tmp_path.iterdir()), "a node was started despite the bad override"
+
+
 def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
     """Every parameter in config/suite.yaml exists with the right type (rclpy ignores unknown ones silently)."""
     from physdyn_ros.nodes.perception_node import PerceptionNode
@@ -91,6 +135,8 @@ def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
                 assert node.get_parameter(key).value == value, (name, key)
             if name != "sim":
                 assert node.has_parameter("model_path")
+            # the launcher refuses overrides of any other name: its list must be exactly the node's
+            assert set(known_parameters(name)) == set(node._parameters), name
             assert node.get_parameter("table_frame").value == shared["table_frame"]
         finally:
             node.destroy_node()
