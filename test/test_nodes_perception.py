@@ -125,3 +125,54 @@ def test_huge_cloud_is_bounded(rclpy_init, tiny_model):
     node.destroy_node()
     assert feature.num_points <= 50_000
     assert elapsed < 5.0, f"a 10M-point cloud took {elapsed:.1f} s"
+
+
+def test_throttle_is_per_reason_kind():
+    from physdyn_ros.ros.throttle import ReasonThrottle
+
+    now, logged = [0.0], []
+    warn = ReasonThrottle(logged.append, 2.0, clock=lambda: now[0])
+    assert warn("a", "the cloud is empty") and warn("b", "only 10 points left")
+    now[0] = 1.0
+    assert not warn("c", "only 12 points left")  # the same kind: the count differs, the reason does not
+    assert warn("d", "frame_id 'camera' is not the table frame")
+    now[0] = 2.5
+    assert warn("e", "only 9 points left")
+    assert logged == ["a", "b", "d", "e (1 more like it since the last one)"]
+
+
+def test_different_bad_clouds_are_each_reported(tiny_model):
+    """Issue 14.7: over DDS, two different bad clouds 1.5 s apart were reported as one (a single 2 s throttle)."""
+    import os
+    import subprocess
+    import sys
+    import threading
+
+    import rclpy
+
+    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM="0", PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "physdyn_ros.nodes.perception_node", "--ros-args", "-p",
+                             f"model_path:={tiny_model}"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=env)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")), daemon=True).start()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("bad_cloud_source", context=context)
+    try:
+        pub = node.create_publisher(PointCloud2, "cloud", 10)
+        assert wait_for(lambda: any("ready:" in ln for ln in lines), 60), "".join(lines)[-2000:]
+        assert wait_for(lambda: pub.get_subscription_count() > 0, 20)
+        for msg in (xyz_to_cloud(np.zeros((0, 3)), "world"), xyz_to_cloud(box_surface(500), "camera_optical"),
+                    xyz_to_cloud(box_surface(10), "world")):
+            pub.publish(msg)
+            time.sleep(0.75)
+        assert wait_for(lambda: sum("ignored:" in ln for ln in lines) >= 3, 10), "".join(lines)[-3000:]
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        proc.terminate()
+        proc.wait(10)
+    text = "".join(lines)
+    for reason in ("the cloud is empty", "is not the table frame 'world'", "only 10 points left"):
+        assert reason in text, text[-3000:]

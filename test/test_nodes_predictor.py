@@ -17,7 +17,7 @@ from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS, PredictorNode
 from physdyn_ros.ros.cloud import xyz_to_cloud
 from physdyn_ros.ros.convert import ns_to_time, point, time_to_ns, vector3
 from physdyn_ros.ros.trajectory import object_state
-from physdyn_ros.srv import PredictTrajectory
+from physdyn_ros.srv import PlanPush, PredictTrajectory
 from test_nodes_support import Spinner, call, tiny_model, wait_for  # noqa: F401 - fixture
 
 T0 = 1_000 * 10**9  # stamps of the scenario, ns
@@ -118,6 +118,9 @@ def test_twist_gives_trajectory_path_and_markers(rclpy_init, predictor):
     ("other_model", "comes from model 'other-model'"),
     ("no_state", "no object_state of 'box' at or before the push"),
     ("old_state", "latest object_state of 'box' is 3.00 s older than the push"),
+    ("unset_stamp", "initial_twist header.stamp is unset (0): stamp the twist"),
+    ("absurd_stamp", "are 20.0 days apart: one stamp is absurd or from another clock"),
+    ("early_push", "every shape feature of 'box' is newer than the push: the oldest by 9.00 s"),
 ])
 def test_bad_twists_are_refused_with_the_reason(rclpy_init, predictor, case, reason):
     node = predictor(state_wait=0.05)
@@ -126,7 +129,9 @@ def test_bad_twists_are_refused_with_the_reason(rclpy_init, predictor, case, rea
     if case == "other_model":
         feature.model_id = "other-model"
     twist = {"nan": twist_msg(v=(math.nan, 0, 0)), "absurd_v": twist_msg(v=(50.0, 0, 0)),
-             "absurd_w": twist_msg(w=(0, 0, 500.0)), "frame": twist_msg(frame="camera")}.get(case, twist_msg())
+             "absurd_w": twist_msg(w=(0, 0, 500.0)), "frame": twist_msg(frame="camera"),
+             "unset_stamp": twist_msg(stamp_ns=0), "absurd_stamp": twist_msg(stamp_ns=T0 + 20 * 86_400 * 10**9 - 10**9),
+             "early_push": twist_msg(stamp_ns=T0 - 10 * 10**9)}.get(case, twist_msg())
     with Spinner(node, c.node):
         c.features.publish(feature)
         if case != "no_state":
@@ -214,6 +219,9 @@ def test_service_answers_good_requests_and_refuses_bad_ones(rclpy_init, predicto
             "cloud has 0 finite points": request(cloud=xyz_to_cloud(np.full((9, 3), np.nan), "world")),
             "cloud frame_id 'camera' is not the table frame": request(cloud=xyz_to_cloud(CLOUD, "camera")),
             "initial_pose: orientation is not finite": request(object_id="mug", orientation=(0, 0, math.nan, 1)),
+            # issue 14.3: a cloud 70 m from the initial pose was accepted
+            "is 70.00 m from the cloud's centre": request(cloud=xyz_to_cloud(CLOUD, "world"),
+                                                          position=(0.2, 70.1, 0.04)),
         }
         for reason, req in bad.items():
             res = call(c.srv, req)
@@ -302,6 +310,12 @@ def test_plan_push_service(rclpy_init, predictor):
             "no shape feature received for object 'cup'": plan_request(object_id="cup"),
             "time_budget must be finite and >= 0": plan_request(object_id="box", time_budget=-1.0),
             "goal_pose: position is not finite": plan_request(object_id="box", goal=(math.nan, 0.0, 0.0)),
+            # issue 14.3: an impulse of 8e8 N s was planned for a 1e9 kg object, and max_speed was unbounded
+            "mass 1e+09 kg is not plausible for this object": plan_request(object_id="box", mass=1e9),
+            "mass 1e+09 kg is not plausible": plan_request(cloud=xyz_to_cloud(CLOUD, "world"), mass=1e9),
+            "mass 1e-05 kg is not plausible": plan_request(cloud=xyz_to_cloud(CLOUD, "world"), mass=1e-5),
+            "max_speed 1e+06 m/s exceeds the node's max_linear_speed 5 m/s": plan_request(object_id="box",
+                                                                                           max_speed=1e6),
             "start_from_object_state: no object_state of 'mug'": plan_request(
                 object_id="mug", cloud=xyz_to_cloud(CLOUD, "world"), start_from_object_state=True),
         }
@@ -312,3 +326,21 @@ def test_plan_push_service(rclpy_init, predictor):
         res = call(plan, plan_request(object_id="box", goal=(4.0, 0.1, 0.0)), timeout=30)
         assert not res.success and "goal unreachable" in res.message
         assert call(plan, plan_request(object_id="box"), timeout=30).success  # still serving
+
+
+def test_plan_push_estimates_the_mass_with_the_simulators_density(rclpy_init, predictor):
+    """Issue 14.2: without a mass, plan_push used 1000 kg/m^3 (box seed 3, 2.72 kg, was planned as 5.95 kg)."""
+    from physdyn_ros.shapes import DEFAULT_DENSITY, resolve_shape
+
+    shape = resolve_shape("box", 3, "")
+    true_mass = shape.mass_properties(density=DEFAULT_DENSITY).mass
+    cloud = (shape.points + (0.2, 0.1, -shape.vertices[:, 2].min())).astype(np.float32)
+    node = predictor(plan_max_topple_probability=1.0)
+    c = Client(rclpy_init)
+    plan = c.node.create_client(PlanPush, "plan_push")
+    with Spinner(node, c.node):
+        res = call(plan, plan_request(cloud=xyz_to_cloud(cloud, "world")), timeout=30)
+    assert res.success, res.message
+    assert res.mass == pytest.approx(true_mass, rel=0.1), (res.mass, true_mass)
+    v = np.array([res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z])
+    assert [res.impulse.x, res.impulse.y, res.impulse.z] == pytest.approx(res.mass * v)

@@ -149,6 +149,16 @@ def test_spawn_object_service(rclpy_init, tmp_path):
         assert rec.states[-1].pose.position.x == pytest.approx(0.2, abs=2e-3)
         pb = call(rec.spawn, SpawnObject.Request(category="pybullet_data", shape_seed=0))
         assert pb.success and "pybullet_data" in pb.message, pb.message
+        # issue 14.3: scale 1000 made a box of 494,000 t; the object in place is kept
+        kept = sim.sim.shape.name
+        huge = SpawnObject.Request(category="box")
+        huge.scale.x = huge.scale.y = huge.scale.z = 1000.0
+        res = call(rec.spawn, huge)
+        assert not res.success and "a tabletop object must measure 0.01-1 m along each axis" in res.message
+        flat = SpawnObject.Request(category="box")
+        flat.scale.x, flat.scale.y, flat.scale.z = 1.0, 1.0, 1e-4
+        assert "must measure" in call(rec.spawn, flat).message
+        assert sim.sim.shape.name == kept
         # the push names the current object
         assert not call(rec.push, push_request(impulse=(0.01, 0, 0), object_id="crate")).success
 

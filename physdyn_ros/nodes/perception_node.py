@@ -18,6 +18,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import PointCloud2
 
 from ..conventions import TABLE_FRAME
+from ..ros.throttle import ReasonThrottle
 from ..msg import ShapeFeature
 from ..ros.cloud import cloud_size, cloud_to_xyz
 from ..ros.convert import point, vector3
@@ -134,6 +135,7 @@ class PerceptionNode(Node):
         self._rng = np.random.default_rng(0)
         self.processed = 0
         self.last_error = ""
+        self._warn = ReasonThrottle(self.get_logger().warning, 2.0)
         self.pub = self.create_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
         self.create_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
         self.get_logger().info(f"ready: encoding clouds in frame '{self.table_frame}' with model "
@@ -147,8 +149,7 @@ class PerceptionNode(Node):
 
     def _reject(self, msg: PointCloud2, reason: str) -> None:
         self.last_error = reason
-        self.get_logger().warning(f"cloud ({cloud_size(msg)} points, frame '{msg.header.frame_id}') ignored: "
-                                  f"{reason}", throttle_duration_sec=2.0)
+        self._warn(f"cloud ({cloud_size(msg)} points, frame '{msg.header.frame_id}') ignored: {reason}", reason)
 
     def encode_cloud(self, msg: PointCloud2) -> ShapeFeature:
         """Cloud message -> ShapeFeature; ValueError with the reason when the cloud cannot be used."""

@@ -40,7 +40,9 @@ from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy,
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
+from ..ros.throttle import ReasonThrottle
 from ..ros.trajectory import msg_to_path, trajectory_markers, trajectory_to_msg
+from ..shapes.core import DEFAULT_DENSITY
 from ..srv import PlanPush, PredictTrajectory
 
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -53,6 +55,14 @@ STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=R
 #: A stamp this close to another counts as the same instant (float round-trips of stamps).
 SAME_INSTANT_NS = 1_000_000
 NS = 1e-9
+#: kg/m^3: the densities a pushed object can have (expanded polystyrene ~10, tungsten ~19,300); a request's
+#: mass is checked against the cloud's hull volume with them.
+MIN_DENSITY, MAX_DENSITY = 5.0, 25_000.0
+#: Stamps further apart than this (s) are not of one session: one is unset or from another clock.
+ABSURD_GAP = 86_400.0
+#: A request's cloud and initial pose describe one object: its centre may lie at most this far (m) outside
+#: the cloud's bounding sphere (a partial view's centroid lies a few cm from the centre of mass).
+POSE_CLOUD_SLACK = 0.1
 
 
 class RequestError(ValueError):
@@ -114,8 +124,9 @@ class PredictorNode(Node):
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)
-        declare(self, "plan_density", 1000.0, "kg/m^3, for the mass estimate when a request gives no mass",
-                low=1.0)
+        declare(self, "plan_density", 0.0, "kg/m^3, for the mass estimate (hull volume x density) when a request "
+                f"gives no mass; 0 = the simulator's density ({DEFAULT_DENSITY:g}, shapes.DEFAULT_DENSITY)",
+                low=0.0, high=MAX_DENSITY)
         declare(self, "plan_table_bounds", [-1.0, 1.0, -1.0, 1.0], "x_min, x_max, y_min, y_max (m) of the table "
                 "top in table_frame: starts, goals and predicted paths must stay inside")
 
@@ -134,6 +145,8 @@ class PredictorNode(Node):
         self.predictions = 0
         self.rejected = 0
         self.last_error = ""
+        self._error_log = ReasonThrottle(self.get_logger().error, 1.0)
+        self._warn_log = ReasonThrottle(self.get_logger().warning, 1.0)
 
         self._infer = MutuallyExclusiveCallbackGroup()
         self._data = MutuallyExclusiveCallbackGroup()
@@ -206,8 +219,18 @@ class PredictorNode(Node):
         else:
             before = [f for f in feats if time_to_ns(f.header.stamp) <= t_ns + SAME_INSTANT_NS]
             feat = before[-1] if before else feats[0]
-            age = (t_ns - time_to_ns(feat.header.stamp)) * NS
+            feat_ns = time_to_ns(feat.header.stamp)
+            age = (t_ns - feat_ns) * NS
+            if feat_ns <= 0:
+                raise RequestError(f"shape feature of '{object_id}' has an unset stamp (0)")
+            if abs(age) > ABSURD_GAP:
+                raise RequestError(f"shape feature of '{object_id}' (stamp {feat_ns * NS:.3f} s) and the push "
+                                   f"(stamp {t_ns * NS:.3f} s) are {abs(age) / 86_400:.1f} days apart: one stamp is "
+                                   "absurd or from another clock (sim time vs wall time: use_sim_time)")
             max_age = float(self._param("max_feature_age"))
+            if max_age > 0 and age < -max_age:
+                raise RequestError(f"every shape feature of '{object_id}' is newer than the push: the oldest by "
+                                   f"{-age:.2f} s (max_feature_age {max_age:g} s); is the push stamped late?")
             if max_age > 0 and abs(age) > max_age:
                 raise RequestError(f"shape feature of '{object_id}' is stale: {age:.2f} s older than the push "
                                    f"(max_feature_age {max_age:g} s); is the perception node receiving clouds?")
@@ -280,7 +303,7 @@ class PredictorNode(Node):
     def _fail(self, reason: str) -> None:
         self.rejected += 1
         self.last_error = reason
-        self.get_logger().error(f"no prediction: {reason}", throttle_duration_sec=1.0)
+        self._error_log(f"no prediction: {reason}", reason)
 
     def _on_twist(self, msg: TwistStamped) -> None:
         t_start = time.monotonic()
@@ -289,6 +312,9 @@ class PredictorNode(Node):
             lin, ang = twist_to_numpy(msg.twist)
             self.check_velocity(lin, ang)
             t_ns = time_to_ns(msg.header.stamp)
+            if t_ns <= 0:
+                raise RequestError("initial_twist header.stamp is unset (0): stamp the twist with the instant of "
+                                   "the push (the node's clock, e.g. node.get_clock().now())")
             object_id = self.target_object()
             feat = self.select_feature(object_id, t_ns)
             position, orientation = self.pose_at(object_id, t_ns, feat)
@@ -395,7 +421,7 @@ class PredictorNode(Node):
             res.success, res.message = False, str(exc)
             self.rejected += 1
             self.last_error = res.message
-            self.get_logger().warning(f"{service} refused: {res.message}", throttle_duration_sec=1.0)
+            self._warn_log(f"{service} refused: {res.message}", res.message)
         else:
             res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
             self.get_logger().error(res.message)
@@ -417,6 +443,7 @@ class PredictorNode(Node):
             stamp_ns = time_to_ns(req.header.stamp)
             object_id, pts, shape = self.request_shape(req, stamp_ns if stamp_ns > 0 else None)
             if pts is not None:
+                check_pose_on_cloud(position, pts)
                 shape = self.predictor.encode(pts)
             observed = self.observed(list(req.observed)) if req.observed else None
             traj = self.predictor.rollout(shape, lin, ang, horizon=horizon, position=position,
@@ -444,10 +471,16 @@ class PredictorNode(Node):
             v = float(getattr(req, name))
             if not np.isfinite(v) or v < 0:
                 raise RequestError(f"{name} must be finite and >= 0 (0 = the node's default), got {v}")
-        return PlannerConfig(max_speed=req.max_speed or float(self._param("plan_max_speed")),
+        vmax = float(self._param("max_linear_speed"))
+        max_speed = req.max_speed or float(self._param("plan_max_speed"))
+        if max_speed > vmax:
+            raise RequestError(f"max_speed {max_speed:g} m/s exceeds the node's max_linear_speed {vmax:g} m/s")
+        if req.time_budget > 30.0:
+            raise RequestError(f"time_budget {req.time_budget:g} s exceeds 30 s")
+        return PlannerConfig(max_speed=max_speed,
                              time_budget=req.time_budget or float(self._param("plan_time_budget")),
                              max_topple_probability=float(self._param("plan_max_topple_probability")),
-                             density=float(self._param("plan_density")),
+                             density=float(self._param("plan_density")) or DEFAULT_DENSITY,
                              table=TableBounds(*bounds) if bounds else None)
 
     def plan_start(self, req: PlanPush.Request, object_id: str):
@@ -483,6 +516,8 @@ class PredictorNode(Node):
                         req.position_tolerance or float(self._param("plan_position_tolerance")),
                         req.yaw_tolerance or float(self._param("plan_yaw_tolerance")))
             object_id, cloud, shape = self.request_shape(req, None)
+            if req.mass > 0:
+                check_mass(req.mass, cloud if cloud is not None else shape)
             shape = cloud if cloud is not None else shape
             start = self.plan_start(req, object_id)
             plan = self.planner.plan(shape, start, goal, mass=req.mass or None, config=cfg)
@@ -505,6 +540,40 @@ class PredictorNode(Node):
         res.topple_probability = res.trajectory.topple_probability
         self.get_logger().info(f"plan_push '{object_id}': {plan.message}")
         return res
+
+
+def check_pose_on_cloud(position: np.ndarray, cloud: np.ndarray) -> None:
+    """RequestError unless the initial position lies within the cloud's bounding sphere (plus slack)."""
+    centre = cloud.mean(axis=0)
+    radius = float(np.linalg.norm(cloud - centre, axis=1).max())
+    gap = float(np.linalg.norm(np.asarray(position, dtype=np.float64) - centre))
+    if gap > radius + POSE_CLOUD_SLACK:
+        raise RequestError(f"initial_pose ({position[0]:.3f}, {position[1]:.3f}, {position[2]:.3f}) is {gap:.2f} m "
+                           f"from the cloud's centre ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}), outside "
+                           f"the object (radius {radius:.2f} m): the cloud and the pose must describe the same "
+                           "object in the table frame")
+
+
+def check_mass(mass: float, shape) -> None:
+    """RequestError when `mass` gives the object an impossible density (its hull volume from the cloud, or the
+    box of the shape code's half extents as an upper bound)."""
+    from ..shapes.core import convex_hull, mass_properties
+
+    if isinstance(shape, np.ndarray):
+        try:
+            v, f = convex_hull(shape.astype(np.float64))
+            volume = float(mass_properties(v, f, density=1.0).volume)
+        except Exception as exc:  # noqa: BLE001 - a flat or degenerate cloud has no volume to check against
+            raise RequestError(f"cloud has no usable convex hull to check the mass against: {exc}") from None
+        what, low = "hull volume", MIN_DENSITY
+    else:
+        volume = float(np.prod(2.0 * np.asarray(shape.half_extents, dtype=np.float64)))
+        # the box holds the solid with room to spare: its density is a lower bound of the object's
+        what, low = "bounding-box volume", MIN_DENSITY / 10.0
+    density = mass / max(volume, 1e-12)
+    if not low <= density <= MAX_DENSITY:
+        raise RequestError(f"mass {mass:g} kg is not plausible for this object: its {what} {volume * 1e3:.3g} L "
+                           f"gives a density of {density:.3g} kg/m^3 (expected {low:g}-{MAX_DENSITY:g})")
 
 
 def main(args: list[str] | None = None) -> int:

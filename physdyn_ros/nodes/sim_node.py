@@ -36,6 +36,9 @@ from ..ros.trajectory import object_state
 from ..srv import PushObject, SpawnObject
 
 DT_NS = int(round(DT * 1e9))
+#: m, the size range of a spawned object along each axis: what a robot pushes on a table (scale 1000 made a
+#: box of 494,000 t).
+MIN_OBJECT_SIZE, MAX_OBJECT_SIZE = 0.01, 1.0
 #: object_state keeps a deep history: at real_time_factor 0 a whole push is published within milliseconds and a
 #: subscriber that wants every frame (the demo, a recorder) must not lose the early ones.
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
@@ -159,6 +162,11 @@ class SimNode(Node):
         if not 0.0 <= friction <= 10.0:
             raise ValueError(f"friction must be in [0, 10], got {friction}")
         shape = self.load_shape(category, mesh_path, shape_seed)
+        size = np.asarray(shape.extents, dtype=np.float64) * scale
+        if size.max() > MAX_OBJECT_SIZE or size.min() < MIN_OBJECT_SIZE:
+            raise ValueError(f"scale {scale.tolist()} makes {shape.name} {size[0]:.3g} x {size[1]:.3g} x "
+                             f"{size[2]:.3g} m; a tabletop object must measure {MIN_OBJECT_SIZE:g}-"
+                             f"{MAX_OBJECT_SIZE:g} m along each axis")
         self._end_push()
         self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction)
         self._visual = None
