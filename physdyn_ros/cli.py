@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
 from typing import Sequence
 
 #: name -> (module, one-line help)
@@ -30,6 +32,41 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 class UsageError(Exception):
     """A bad command-line input; printed as one line, exit code 2."""
+
+
+#: Set to 1 to see the traceback of a user error too (the one-line error still ends the output).
+DEBUG_ENV = "PHYSDYN_DEBUG"
+
+
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    """Exceptions that mean "the input is wrong" (or the environment refused it), not "physdyn has a bug".
+
+    ValueError is how the subcommands refuse a bad value, path or file content (the bag, dataset, checkpoint and
+    planner errors derive from it); OSError covers missing / unreadable / unwritable paths and full disks;
+    RuntimeError is raised for failures of the running system (checkpoint errors, storage stops, nodes that do
+    not start). Library errors that name a bad input file are listed too, in case one escapes a subcommand.
+    """
+    types: list[type[BaseException]] = [UsageError, ValueError, OSError, RuntimeError]
+    for module, names in (("rosbags.rosbag2", ("ReaderError", "WriterError")), ("yaml", ("YAMLError",)),
+                          ("ruamel.yaml", ("YAMLError",))):
+        if module.split(".")[0] in sys.modules:  # only libraries the command loaded can have raised
+            try:
+                mod = importlib.import_module(module)
+            except ImportError:
+                continue
+            types += [getattr(mod, n) for n in names if isinstance(getattr(mod, n, None), type)]
+    return tuple(types)
+
+
+def error_message(exc: BaseException) -> str:
+    """One line naming the problem: the exception's message, or for a bare OSError 'path: reason'."""
+    if isinstance(exc, OSError) and exc.strerror and len(exc.args) >= 2:
+        where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        text = f"{where}: {exc.strerror}" if where else exc.strerror
+    else:
+        text = str(exc)
+    text = " ".join(text.split())  # a multi-line message (YAML errors, ...) on one line
+    return text or type(exc).__name__
 
 
 def _top_parser() -> argparse.ArgumentParser:
@@ -58,10 +95,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"physdyn {top.command}: interrupted", file=sys.stderr)
         return 130
-    except (UsageError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError,
-            PermissionError, RuntimeError) as exc:
-        # One readable line instead of a traceback; the exception names the problem.
-        print(f"physdyn {top.command}: error: {exc}", file=sys.stderr)
+    except Exception as exc:  # noqa: BLE001 - sorted below: a user's mistake or a bug
+        if not isinstance(exc, _user_error_types()):
+            raise  # a bug: the traceback is what a report needs
+        # A user's mistake: one readable line naming the problem instead of a traceback (PHYSDYN_DEBUG=1 shows it).
+        if os.environ.get(DEBUG_ENV, "").strip() not in ("", "0"):
+            traceback.print_exc()
+        print(f"physdyn {top.command}: error: {error_message(exc)}", file=sys.stderr)
         return 2
 
 

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from .. import geometry as geo
 from ..conventions import DT, NUM_POINTS
+from .reading import open_bag
 from .types import deserialize
 
 NS = 1_000_000_000
@@ -165,9 +165,7 @@ def load_session(bag: str | Path, state_topic: str | None = None, twist_topic: s
                  object_id: str | None = None) -> Session:
     """Read the pushes' raw material from a bag (folder or single .mcap/.db3 file). ValueError if unusable."""
     bag = Path(bag)
-    if not bag.exists():
-        raise FileNotFoundError(f"bag {bag} not found")
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:  # FileNotFoundError / BagError for a path that is not a readable bag
         conns = list(reader.connections)
         if state_topic is not None:
             state = _find(conns, state_topic, STATE_TYPES)

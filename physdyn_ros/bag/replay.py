@@ -13,7 +13,8 @@ import time
 from pathlib import Path
 
 from rosbags.interfaces import QosDurability, QosReliability
-from rosbags.rosbag2 import Reader
+
+from .reading import check_bag, open_bag
 
 #: Publisher queue depth: deep enough that a burst is never overwritten before the middleware sends it.
 PUB_DEPTH = 1000
@@ -48,16 +49,14 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
         raise ValueError(f"--rate must be positive, got {rate}")
     if delay < 0 or start < 0:
         raise ValueError("--delay and --start must not be negative")
-    bag = Path(bag)
-    if not bag.exists():
-        raise FileNotFoundError(f"bag {bag} not found")
+    bag = check_bag(bag)  # before creating a node: FileNotFoundError / BagError for a path that is not a bag
     own = node is None
     if own:
         import rclpy
 
         node = rclpy.create_node("replay")
     try:
-        with Reader(bag) as reader:
+        with open_bag(bag) as reader:
             conns = list(reader.connections)
             if topics:
                 want = {_topic(t) for t in topics}
