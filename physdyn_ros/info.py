@@ -4,10 +4,26 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON")
+
+
+def quiet_import(name: str):
+    """Import a module whose C side prints to stdout on import (pybullet: "pybullet build time: ..."), with
+    file descriptor 1 pointed at /dev/null meanwhile, so `physdyn info --json` prints JSON only."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            return importlib.import_module(name)
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -17,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     info: dict[str, object] = {"physdyn_ros": __version__, "share": str(share_dir())}
     for mod in ("rclpy", "torch", "pybullet", "open3d", "numpy"):
         try:
-            m = importlib.import_module(mod)
+            m = quiet_import(mod)
             info[mod] = getattr(m, "__version__", "installed")
         except ImportError as exc:  # the learning core works without ROS and pybullet
             info[mod] = f"missing ({exc})"
@@ -28,6 +44,13 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:
         info["interfaces"] = f"not built ({exc}); run setup.sh"
     info["default_model"] = str(DEFAULT_MODEL) if DEFAULT_MODEL.exists() else "not shipped"
+    if DEFAULT_MODEL.exists():
+        try:
+            from physdyn_ros.learn.checkpoint import load_checkpoint
+
+            info["default_model_id"] = load_checkpoint(DEFAULT_MODEL)["model_id"]
+        except Exception as exc:  # noqa: BLE001 - info reports a broken model, it does not fail on it
+            info["default_model_id"] = f"unreadable ({exc})"
     if args.json:
         print(json.dumps(info, indent=2))
     else:

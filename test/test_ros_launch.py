@@ -196,7 +196,8 @@ def test_demo_short_run(tmp_path, tiny_model):
     run = subprocess.run([PHYSDYN, "demo", "--pushes", "2", "--model", str(tiny_model), "--output", str(out),
                           "--horizon", "30"], capture_output=True, text=True, timeout=240)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    assert "mean final error over 2 pushes" in run.stdout
+    assert "errors over 2 pushes (a toppled push up to its topple)" in run.stdout
+    assert "verdict: " in run.stdout
     assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     results = json.loads((out / "results.json").read_text())
     pushes = results["pushes"]
@@ -204,4 +205,33 @@ def test_demo_short_run(tmp_path, tiny_model):
     for p in pushes:
         assert len(p["true_xy"]) == 31 and len(p["predicted_xy"]) == 31
         assert p["position_error_cm"] >= 0 and p["rotation_error_deg"] >= 0
+        assert p["verdict"] in ("GOOD", "FAIR", "POOR") and len(p["outline"]) > 50
+        # a toppled push is scored at its last upright frame, an upright one at the end
+        assert p["scored_step"] == (p["true_topple_step"] - 1 if p["toppled"] else 30)
     assert {"sim.log", "perception.log", "predictor.log"} <= {f.name for f in (out / "logs").iterdir()}
+
+
+def test_demo_scores_a_toppled_push_up_to_the_topple():
+    """Issue 14.4: the demo scored where a toppled object rolled (144 cm "errors")."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from physdyn_ros.demo import score, verdict
+
+    n = 31
+    true_pos = np.zeros((n, 3))
+    true_pos[:, 0] = np.linspace(0, 1.5, n)  # rolls 1.5 m after toppling
+    tilt = np.clip(np.arange(n) - 8, 0, None) * 0.3  # upright until step 8, then tips over
+    true_q = Rotation.from_rotvec(np.column_stack([np.zeros(n), tilt, np.zeros(n)])).as_quat()
+    pred_pos = true_pos.copy()
+    pred_pos[:, 0] = np.minimum(true_pos[:, 0], 0.5)  # right until the topple (step 11), then stops
+    pred_q = Rotation.identity(n).as_quat()
+    s = score(pred_pos, pred_q, true_pos, true_q)
+    first_tipped = int(np.argmax(np.degrees(tilt) > 45))
+    assert s["true_topple_step"] == first_tipped and s["scored_step"] == first_tipped - 1
+    assert s["position_error_cm"] < 1e-9 and s["rotation_error_deg"] < 45.0
+    upright = score(pred_pos, pred_q, true_pos, pred_q)
+    assert upright["true_topple_step"] == -1 and upright["scored_step"] == n - 1
+    assert upright["position_error_cm"] == pytest.approx(100.0)
+    assert verdict(1.9, 9.0, True) == "GOOD" and verdict(1.0, 1.0, False) == "POOR"
+    assert verdict(4.0, 25.0, True) == "FAIR" and verdict(6.0, 5.0, True) == "POOR"
