@@ -16,8 +16,8 @@ from rosbags.rosbag2 import Reader
 from ruamel.yaml import YAML
 
 from physdyn_ros.bag.types import SUITE_TOPICS, ensure_type, normalize_type, typestore
-from physdyn_ros.bag.writer import BagStorageError, BagWriter, check_output, parse_size
-from test_bag_support import OBJECT_STATE, object_state_bytes, read_bag, string_bytes
+from physdyn_ros.bag.writer import CHUNK_PERIOD, BagStorageError, BagWriter, check_output, parse_size
+from test_bag_support import OBJECT_STATE, object_state_bytes, read_bag, scan_mcap, string_bytes
 
 INF = QosTime(9223372036, 854775807)
 QOS = Qos(QosHistory.UNKNOWN, 0, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, INF, INF,
@@ -75,6 +75,53 @@ def test_split_bag_reads_back_byte_for_byte(tmp_path, storage):
         assert "MSG: geometry_msgs/Pose" in defs["/object_state"] and "float32 topple_probability" in defs[
             "/object_state"]
         assert r.duration == 400  # 10_000 .. 10_399 (rosbags reports end - start + 1)
+
+
+def test_unfinished_split_is_on_disk_up_to_its_last_complete_chunk(tmp_path):
+    """What kill -9 finds: header and every chunk completed by age (tick) or size are in the file, in order."""
+    clock = FakeClock()
+    w = BagWriter(tmp_path / "bag", split_duration=None, split_size=None, clock=clock)
+    w.open()
+    a = w.add_topic("/object_state", OBJECT_STATE)
+    f = tmp_path / "bag" / "bag_0" / "bag_0.mcap"
+    sent = []
+
+    def on_disk():  # what another process reads now (a killed writer's Python buffers are gone)
+        scan = scan_mcap(f)
+        got = [(t, s, d) for t, s, d in scan["messages"]]
+        assert not scan["footer"] and scan["tail"] == 0 and got == sent[:len(got)]
+        return len(got), scan
+
+    w.write(a, 1, object_state_bytes(0))
+    sent.append(("/object_state", 1, object_state_bytes(0)))
+    assert f.stat().st_size > 8 and on_disk()[0] == 0  # header at once, the open chunk not yet
+    for i in range(1, 250):
+        if i == 100:  # a topic added mid-split: its channel goes into the next chunk
+            b = w.add_topic("/chatter", "std_msgs/msg/String")
+        if i >= 100 and i % 10 == 0:
+            w.write(b, 1 + i, string_bytes(f"chat{i:03d}"))
+            sent.append(("/chatter", 1 + i, string_bytes(f"chat{i:03d}")))
+        w.write(a, 1 + i, object_state_bytes(i))
+        sent.append(("/object_state", 1 + i, object_state_bytes(i)))
+        clock.t += 0.01
+        w.tick()
+        # Loss bound: only messages of the last CHUNK_PERIOD (+ one tick) are not on disk yet.
+        n, _ = on_disk()
+        assert n >= len(sent) - (CHUNK_PERIOD / 0.01 + 1) * 1.1 - 1
+    n, scan = on_disk()
+    assert scan["chunks"] >= 2 and scan["indexed"] >= scan["chunks"] and n < len(sent)
+    clock.t += CHUNK_PERIOD  # a quiet second: the open chunk goes out at the next tick ...
+    w.tick()
+    assert on_disk()[0] == len(sent)
+    w.tick()  # ... and an empty one is never written
+    assert on_disk()[1]["chunks"] == scan["chunks"] + 1
+    big = string_bytes("x" * 300_003)
+    for i in range(4):  # > 1 MiB without a tick: chunks completed by size are on disk too
+        w.write(b, 1000 + i, big)
+        sent.append(("/chatter", 1000 + i, big))
+    assert on_disk()[0] == len(sent)
+    w.close()
+    assert read_bag(tmp_path / "bag") == sorted(sent, key=lambda m: m[1]) and not f.parent.exists()
 
 
 def test_refusals(tmp_path):

@@ -9,9 +9,16 @@ is rewritten atomically (temporary file + os.replace) after every split. This is
 `ros2 bag info/play`, rosbags and Foxglove (file by file) read it.
 
 Loss bounds: after a clean close nothing is lost. After kill -9 or power loss every finished split stays
-readable; what is lost is the unfinished split: at most `split_duration` seconds of wall time (plus one
+readable; what the bag loses is the unfinished split: at most `split_duration` seconds of wall time (plus one
 `tick()` period) or `split_size` bytes of messages, whichever bound is hit first. The unfinished split stays in
-its folder `<bag>/<bag>_i/` (listed nowhere; `mcap recover` can salvage its complete chunks).
+its folder `<bag>/<bag>_i/`, listed nowhere. With MCAP it is written incrementally (_IncrementalMcapWriter):
+the header at once, then each chunk with its message indexes as soon as it is complete, handed to the OS at
+once: a chunk is completed when its first message is `chunk_period` (CHUNK_PERIOD, 1 s) old, checked by
+`tick()`, or when it holds 1 MiB. So after kill -9 the unfinished file holds every message but those of the
+last `chunk_period` seconds (plus one `tick()` period) or the last 1 MiB, in complete chunks that
+`mcap recover` salvages (it has no summary and no footer, so rosbags does not open it). The chunks are not
+fsynced: after a power loss the unfinished file holds what the OS had written back. With sqlite3 the
+unfinished split's messages are committed only when it is finished: its .db3 holds none of them.
 
 Storage full: `open()` refuses a disk with less than `min_free` bytes free; `tick()` stops the bag cleanly
 (finalizes the current split, nothing lost) once free space falls below `min_free`; a write error (ENOSPC,
@@ -32,6 +39,7 @@ from typing import Callable, Sequence
 from rosbags.interfaces import Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import dump_qos_v9
+from rosbags.rosbag2.storage_mcap import McapWriter
 from ruamel.yaml import YAML
 
 from .types import typestore
@@ -46,6 +54,12 @@ MESSAGE_OVERHEAD = 64
 SUMMARY_RESERVE = 256 * 1024
 #: How often tick() looks at the free disk space, seconds.
 FREE_CHECK_PERIOD = 1.0
+#: An MCAP split's open chunk is completed and handed to the OS once its first message is this old (checked by
+#: tick()), or when it holds 1 MiB (rosbags' chunk size): what a kill -9 takes from the unfinished split.
+CHUNK_PERIOD = 1.0
+#: Bytes a completed chunk costs besides its messages (chunk record, index records, chunk index), per chunk and
+#: per topic in it; added to the size estimate when tick() completes a chunk.
+CHUNK_OVERHEAD, CHUNK_TOPIC_OVERHEAD = 128, 32
 _EMPTY_START = 2**63 - 1  # what rosbag2 and rosbags write as the start of a bag without messages
 
 
@@ -98,6 +112,43 @@ def free_bytes(path: Path) -> int:
     return st.f_bavail * st.f_frsize
 
 
+class _IncrementalMcapWriter(McapWriter):
+    """rosbags' MCAP storage writer whose file is valid up to its last complete chunk while it is written.
+
+    rosbags buffers the header in Python and completes a chunk only at 1 MiB, so a killed recorder left a 0-byte
+    file. Here the header is handed to the OS at open and every chunk, with its message index records, as soon
+    as it is complete (by size inside rosbags' write(), or by BagWriter.tick() through complete_chunk()). An
+    unfinished file is then header + complete chunks (+ a partial record), what `mcap recover` salvages.
+    Flushed to the OS, not fsynced: this survives kill -9; a power loss can take what the OS had not written.
+    """
+
+    def __init__(self, path: Path, compression) -> None:
+        super().__init__(path, compression)
+        self.bio.flush()
+
+    def close_chunk(self) -> None:
+        super().close_chunk()
+        self.bio.flush()
+
+    @property
+    def chunk_topics(self) -> int:
+        """Topics with messages in the open chunk (0: nothing to complete)."""
+        return len(self.chunk.msgs)
+
+    def complete_chunk(self) -> bool:
+        """Write and flush the open chunk if it holds messages; whether it did."""
+        if not self.chunk.msgs:
+            return False
+        self.close_chunk()
+        return True
+
+
+class _SplitWriter(Writer):
+    """rosbags' bag writer with the incremental MCAP storage."""
+
+    STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _IncrementalMcapWriter}
+
+
 @dataclass
 class _Topic:
     name: str
@@ -113,6 +164,7 @@ class _Split:
     writer: Writer
     conns: dict[int, object] = field(default_factory=dict)  # topic id -> rosbags Connection
     opened: float = 0.0  # clock() at open
+    chunk_opened: float | None = None  # clock() at the first message of the open MCAP chunk (None: no message)
     count: int = 0
     bytes: int = 0  # payload + overhead estimate
     start_ns: int = _EMPTY_START
@@ -128,7 +180,8 @@ class BagWriter:
 
     def __init__(self, path: str | os.PathLike, *, storage: str = "mcap", split_duration: float | None = 10.0,
                  split_size: int | None = 64 * MiB, max_bytes: int | None = None, min_free: int = 64 * MiB,
-                 custom_data: dict[str, str] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+                 custom_data: dict[str, str] | None = None, clock: Callable[[], float] = time.monotonic,
+                 chunk_period: float = CHUNK_PERIOD) -> None:
         if storage not in STORAGES:
             raise ValueError(f"unknown storage {storage!r}; use one of {', '.join(STORAGES)}")
         if split_duration is not None and split_duration <= 0:
@@ -140,6 +193,8 @@ class BagWriter:
                              f"got {max_bytes}")
         if min_free < 0:
             raise ValueError(f"min free space must not be negative, got {min_free}")
+        if not chunk_period > 0:
+            raise ValueError(f"chunk period must be positive, got {chunk_period}")
         self.path = Path(path)
         self.name = self.path.name
         self.storage = storage
@@ -148,6 +203,7 @@ class BagWriter:
         self.max_bytes, self.min_free = max_bytes, min_free
         self.custom_data = {"recorder": "physdyn_ros", **(custom_data or {})}
         self.clock = clock
+        self.chunk_period = chunk_period
         self.topics: list[_Topic] = []
         self.files: list[dict] = []  # finished splits, rosbag2 FileInformation dicts
         self.finished_bytes = 0
@@ -211,6 +267,9 @@ class BagWriter:
             self._guard(self._open_split)
         split = self.split
         assert split is not None
+        storage = split.writer.storage
+        if isinstance(storage, _IncrementalMcapWriter) and not storage.chunk_topics:
+            split.chunk_opened = self.clock()  # this message opens a chunk (the previous one is complete)
         self._guard(lambda: split.writer.write(split.conns[topic_id], int(timestamp_ns), data))
         split.count += 1
         split.bytes += cost
@@ -227,6 +286,8 @@ class BagWriter:
         split = self.split
         if split is not None and self.split_duration is not None and now - split.opened >= self.split_duration:
             self._guard(self._finish_split)
+        elif split is not None and split.chunk_opened is not None and now - split.chunk_opened >= self.chunk_period:
+            self._guard(self._complete_chunk)
         if now - self._last_free_check >= FREE_CHECK_PERIOD:
             self._last_free_check = now
             free = free_bytes(self.path)
@@ -275,13 +336,23 @@ class BagWriter:
         index = self.next_index
         self.next_index += 1
         d = self._split_dir(index)
-        writer = Writer(d, version=9, storage_plugin=self.plugin)
+        writer = _SplitWriter(d, version=9, storage_plugin=self.plugin)
         for k, v in self.custom_data.items():
             writer.set_custom_data(k, v)
         writer.open()
         self.split = _Split(index=index, dir=d, writer=writer, opened=self.clock())
         for tid in range(len(self.topics)):
             self._add_connection(self.split, tid)
+
+    def _complete_chunk(self) -> None:
+        """Write the open split's chunk to its file and flush it to the OS (MCAP; see _IncrementalMcapWriter)."""
+        split = self.split
+        assert split is not None
+        storage = split.writer.storage
+        split.chunk_opened = None
+        topics = storage.chunk_topics
+        if storage.complete_chunk():
+            split.bytes += CHUNK_OVERHEAD + CHUNK_TOPIC_OVERHEAD * topics
 
     def _add_connection(self, split: _Split, tid: int) -> None:
         t = self.topics[tid]
