@@ -56,7 +56,7 @@ def test_push_in_the_sim_is_predicted(rclpy_init, tiny_model):
         assert traj.states[0].twist.linear.y == pytest.approx(0.2, rel=1e-6)
         assert np.all(np.isfinite([s.pose.position.x for s in traj.states]))
         # the service path on the same object (its latest feature), and on the sim's own cloud
-        req = PredictTrajectory.Request(object_id="object", horizon=20)
+        req = PredictTrajectory.Request(object_id="object", horizon=20, include_path=True)
         req.header.frame_id = "world"
         req.initial_pose = frame0.pose
         req.initial_twist = res.initial_twist

@@ -174,6 +174,7 @@ def request(**kw) -> PredictTrajectory.Request:
     req.header.frame_id = kw.pop("frame", "world")
     req.object_id = kw.pop("object_id", "")
     req.horizon = kw.pop("horizon", 0)
+    req.include_path = kw.pop("include_path", False)
     req.initial_twist.linear = vector3(kw.pop("v", (0.5, 0.0, 0.0)))
     req.initial_twist.angular = vector3(kw.pop("w", (0.0, 0.0, 0.5)))
     if "cloud" in kw:
@@ -197,9 +198,11 @@ def test_service_answers_good_requests_and_refuses_bad_ones(rclpy_init, predicto
     node = predictor()
     c = Client(rclpy_init)
     with Spinner(node, c.node):
-        res = call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=30))
+        res = call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=30, include_path=True))
         assert res.success, res.message
         assert len(res.trajectory.states) == 31 and len(res.path.poses) == 31
+        assert res.path.poses[30].pose == res.trajectory.states[30].pose
+        assert not call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=30)).path.poses  # not asked
         assert res.trajectory.object_id == "cloud" and res.trajectory.model_id == node.model_id
         assert res.trajectory.states[0].pose.position.x == pytest.approx(0.2)
         assert res.trajectory.states[0].pose.orientation.w == pytest.approx(1.0)  # all-zero quaternion = identity

@@ -14,8 +14,10 @@ Services
                         (physdyn_ros.planning: CEM over batched roll-outs, bounded by plan_time_budget).
 
 The model is loaded once at start; a checkpoint that cannot be loaded stops the node with a non-zero exit.
-Roll-outs and plans (topic and services) run in one MutuallyExclusiveCallbackGroup, so torch runs in one thread at a time,
-while the data callbacks (features, states) run in another group and keep filling the buffers.
+Everything runs on one SingleThreadedExecutor: under a MultiThreadedExecutor the callbacks contended for the GIL
+(each took twice as long) and twists queued ~100 ms behind them (ros2/rclpy#1452). Nothing blocks: a twist
+whose object_state of the push instant has not arrived yet is parked until that state arrives or `state_wait`
+passes; DDS queues (states: depth 200) hold the data that arrives while a roll-out or a plan runs.
 """
 from __future__ import annotations
 
@@ -67,6 +69,15 @@ POSE_CLOUD_SLACK = 0.1
 
 class RequestError(ValueError):
     """A bad input: the reason is logged or returned to the caller; nothing is published."""
+
+
+@dataclass
+class ParkedTwist:
+    """A twist waiting (at most state_wait) for the object_state stamped at its push instant."""
+
+    msg: TwistStamped
+    t_start: float  # time.monotonic() when the twist arrived
+    deadline: float
 
 
 @dataclass
@@ -142,14 +153,17 @@ class PredictorNode(Node):
         self._states: dict[str, deque[ObjectState]] = {}
         self._observed: dict[str, deque[ObjectState]] = {}
         self._pending: list[PendingRefinement] = []
+        self._parked: list[ParkedTwist] = []
         self.predictions = 0
         self.rejected = 0
         self.last_error = ""
         self._error_log = ReasonThrottle(self.get_logger().error, 1.0)
         self._warn_log = ReasonThrottle(self.get_logger().warning, 1.0)
 
+        # One group: the node runs on a single thread (main()); the groups only matter to a caller that adds
+        # this node to a MultiThreadedExecutor, where roll-outs must still not run concurrently.
         self._infer = MutuallyExclusiveCallbackGroup()
-        self._data = MutuallyExclusiveCallbackGroup()
+        self._data = self._infer
         self.pub_traj = self.create_publisher(PredictedTrajectory, "predicted_trajectory", LATCHED)
         self.pub_path = self.create_publisher(Path, "predicted_path", LATCHED)
         self.pub_markers = self.create_publisher(MarkerArray, "predicted_markers", LATCHED)
@@ -176,6 +190,8 @@ class PredictorNode(Node):
         with self._lock:
             self._states.setdefault(msg.object_id, deque(maxlen=512)).append(msg)
             self._lock.notify_all()
+        if self._parked:
+            self._release_parked()
 
     def _on_observed(self, msg: ObjectState) -> None:
         with self._lock:
@@ -252,6 +268,16 @@ class PredictorNode(Node):
                          centroid=xyz_to_numpy(feat.centroid), half_extents=xyz_to_numpy(feat.half_extents),
                          num_points=int(feat.num_points), model_id=feat.model_id)
 
+    def state_at(self, object_id: str, t_ns: int) -> tuple[ObjectState | None, bool]:
+        """The newest object_state at or before t_ns, and whether it is the state of that instant."""
+        with self._lock:
+            best = None
+            for s in reversed(self._states.get(object_id, ())):
+                if time_to_ns(s.header.stamp) <= t_ns + SAME_INSTANT_NS:
+                    best = s
+                    break
+        return best, best is not None and time_to_ns(best.header.stamp) >= t_ns - SAME_INSTANT_NS
+
     def pose_at(self, object_id: str, t_ns: int, feat: ShapeFeature) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Initial (position, orientation) for a push at t_ns (None, None: the Predictor's defaults)."""
         source = self._param("initial_pose_source")
@@ -260,19 +286,7 @@ class PredictorNode(Node):
             return xyz_to_numpy(feat.centroid), np.array([0.0, 0.0, np.sin(h / 2), np.cos(h / 2)])
         if source != "object_state":
             raise RequestError(f"initial_pose_source must be 'object_state' or 'shape_feature', not '{source}'")
-        deadline = time.monotonic() + float(self._param("state_wait"))
-        with self._lock:
-            while True:
-                states = [s for s in self._states.get(object_id, ())
-                          if time_to_ns(s.header.stamp) <= t_ns + SAME_INSTANT_NS]
-                best = states[-1] if states else None
-                # Wait (bounded) for the state of the push instant: it may arrive just after the twist.
-                if best is not None and time_to_ns(best.header.stamp) >= t_ns - SAME_INSTANT_NS:
-                    break
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._lock.wait(left)
+        best, _ = self.state_at(object_id, t_ns)
         if best is None:
             raise RequestError(f"no object_state of '{object_id}' at or before the push (initial_pose_source "
                                "object_state needs a tracker or the sim on object_state)")
@@ -307,6 +321,27 @@ class PredictorNode(Node):
 
     def _on_twist(self, msg: TwistStamped) -> None:
         t_start = time.monotonic()
+        if self._param("initial_pose_source") == "object_state" and float(self._param("state_wait")) > 0:
+            # The state of the push instant may arrive just after the twist: park the twist until it does.
+            oid = self._param("object_id") or self._latest_feature_id
+            if oid and time_to_ns(msg.header.stamp) > 0 and not self.state_at(oid, time_to_ns(msg.header.stamp))[1]:
+                self._parked.append(ParkedTwist(msg, t_start, t_start + float(self._param("state_wait"))))
+                return
+        self._predict_twist(msg, t_start)
+
+    def _release_parked(self) -> None:
+        """Predict the parked twists whose state arrived, and those whose wait is over (with the states there are)."""
+        now, keep = time.monotonic(), []
+        for p in self._parked:
+            oid = self._param("object_id") or self._latest_feature_id
+            ready = bool(oid) and self.state_at(oid, time_to_ns(p.msg.header.stamp))[1]
+            if ready or now >= p.deadline:
+                self._predict_twist(p.msg, p.t_start)
+            else:
+                keep.append(p)
+        self._parked = keep
+
+    def _predict_twist(self, msg: TwistStamped, t_start: float) -> None:
         try:
             self.check_frame(msg.header.frame_id, "initial_twist")
             lin, ang = twist_to_numpy(msg.twist)
@@ -340,8 +375,10 @@ class PredictorNode(Node):
                 time.monotonic() + steps_in * float(self.predictor.dt) * 3 + 2.0))
 
     def _on_refine_timer(self) -> None:
-        """Re-predict pending pushes as observed states arrive: one corrected trajectory per new observed state,
-        fed as "steps in", until `steps_in` states have been used."""
+        """Expire parked twists; re-predict pending pushes as observed states arrive: one corrected trajectory
+        per new observed state, fed as "steps in", until `steps_in` states have been used."""
+        if self._parked:
+            self._release_parked()
         if not self._pending:
             return
         steps_in = int(self._param("steps_in"))
@@ -453,7 +490,8 @@ class PredictorNode(Node):
         stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
         res.trajectory = trajectory_to_msg(traj, self.table_frame, stamp, object_id, self.model_id,
                                            steps_in=len(req.observed))
-        res.path = msg_to_path(res.trajectory)
+        if req.include_path:
+            res.path = msg_to_path(res.trajectory)
         res.topple_probability = res.trajectory.topple_probability
         res.success = True
         res.message = f"{horizon} steps in {1e3 * (time.monotonic() - t_start):.1f} ms"
@@ -577,8 +615,7 @@ def check_mass(mass: float, shape) -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    # Threads: one for roll-outs (their group is mutually exclusive), the others keep the buffers filling.
-    return run_node(PredictorNode, "predictor", args, threads=3)
+    return run_node(PredictorNode, "predictor", args)  # single-threaded: see the module docstring
 
 
 if __name__ == "__main__":
