@@ -3,6 +3,10 @@
 Each subcommand lives in the module it drives; that module defines ``add_arguments(parser)`` and
 ``run(args) -> int``. Modules are imported only when their subcommand runs, so ``physdyn --help`` stays fast
 and a machine without ROS can still train.
+
+Errors: a user's mistake (see _user_error_types: a bad value, path or file, a storage stop, ...) ends with one
+line `physdyn <cmd>: error: <reason>` on stderr and exit code 2, never a traceback (PHYSDYN_DEBUG=1 prints it
+first); any other exception is a bug and propagates with its traceback (exit code 1).
 """
 from __future__ import annotations
 

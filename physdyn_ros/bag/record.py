@@ -15,8 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bag folder to create (must not exist or be empty; default rosbag2_<date>-<time>)")
     parser.add_argument("-s", "--storage", choices=["mcap", "sqlite3"], default="mcap", help="storage (mcap)")
     parser.add_argument("--split-duration", type=float, default=10.0, metavar="S",
-                        help="start a new bag file every S seconds (default 10; a crash loses at most the "
-                             "current file); 0 = never")
+                        help="start a new bag file every S seconds (default 10; a crash takes at most the "
+                             "current file out of the bag, its chunks older than 1 s stay salvageable); 0 = never")
     parser.add_argument("--split-size", default="64M", metavar="BYTES",
                         help="start a new bag file once it holds this much (default 64M); 0 = no limit")
     parser.add_argument("--max-bytes", default="0", metavar="BYTES",
