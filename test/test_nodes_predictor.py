@@ -347,3 +347,26 @@ def test_plan_push_estimates_the_mass_with_the_simulators_density(rclpy_init, pr
     assert res.mass == pytest.approx(true_mass, rel=0.1), (res.mass, true_mass)
     v = np.array([res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z])
     assert [res.impulse.x, res.impulse.y, res.impulse.z] == pytest.approx(res.mass * v)
+
+
+def test_diagnostics_report_the_counters(rclpy_init, predictor):
+    """Issue 15.2: /diagnostics from the predictor: model id, counts, the last refusal (WARN after one)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    node = predictor()
+    c = Client(rclpy_init)
+    got: list[DiagnosticArray] = []
+    c.node.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
+    with Spinner(node, c.node):
+        assert wait_for(lambda: got, 5), "no /diagnostics within 5 s"
+        first = {kv.key: kv.value for kv in got[-1].status[0].values}
+        assert got[-1].status[0].name == "predictor: predictions" and got[-1].status[0].level == DiagnosticStatus.OK
+        assert first["model_id"] == node.model_id and first["refusals"] == "0"
+        assert not call(c.srv, request(object_id="nobody")).success
+        assert call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=10)).success
+        n = len(got)
+        assert wait_for(lambda: len(got) > n, 5)
+    status = got[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == DiagnosticStatus.WARN and "no shape feature received for object 'nobody'" in status.message
+    assert values["refusals"] == "1" and values["predictions"] == "1" and float(values["latency_p50_ms"]) > 0

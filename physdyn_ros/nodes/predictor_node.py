@@ -39,6 +39,7 @@ from ..conventions import TABLE_FRAME
 from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
 from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
+from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
@@ -176,8 +177,21 @@ class PredictorNode(Node):
         self.create_service(PredictTrajectory, "predict_trajectory", self._on_service, callback_group=self._infer)
         self.create_service(PlanPush, "plan_push", self._on_plan, callback_group=self._infer)
         self.create_timer(0.05, self._on_refine_timer, callback_group=self._infer)
+        self._latency_ms: deque[float] = deque(maxlen=100)
+        self._refusals = RefusalWindow()
+        self.diagnostics = Diagnostics(self, "predictions", self._diagnose, callback_group=self._infer)
         self.get_logger().info(f"ready: model {self.model_id}, horizon {self.get_parameter('horizon').value}, "
                                f"frame '{self.table_frame}'")
+
+    def _diagnose(self) -> Report:
+        level = self._refusals.level(self.rejected)
+        lat = np.asarray(self._latency_ms) if self._latency_ms else np.zeros(1)
+        message = f"last refusal: {self.last_error}" if level != OK else "predicting"
+        return level, message, {
+            "model_id": self.model_id, "predictions": self.predictions, "refusals": self.rejected,
+            "last_refusal": self.last_error, "latency_p50_ms": f"{np.percentile(lat, 50):.2f}",
+            "latency_max_ms": f"{lat.max():.2f}", "objects_with_features": len(self._features),
+            "parked_twists": len(self._parked), "pending_refinements": len(self._pending)}
 
     # ---------------------------------------------------------------------------------------------- buffers
     def _on_feature(self, msg: ShapeFeature) -> None:
@@ -364,6 +378,7 @@ class PredictorNode(Node):
         out = trajectory_to_msg(traj, self.table_frame, msg.header.stamp, object_id, self.model_id)
         self.publish(out, feat)
         self.predictions += 1
+        self._latency_ms.append(1e3 * (time.monotonic() - t_start))
         self.get_logger().info(
             f"predicted {len(out.states) - 1} steps for '{object_id}' in {1e3 * (time.monotonic() - t_start):.1f} ms:"
             f" final position ({traj.positions[-1][0]:.3f}, {traj.positions[-1][1]:.3f}) m, topple probability "
@@ -494,7 +509,9 @@ class PredictorNode(Node):
             res.path = msg_to_path(res.trajectory)
         res.topple_probability = res.trajectory.topple_probability
         res.success = True
-        res.message = f"{horizon} steps in {1e3 * (time.monotonic() - t_start):.1f} ms"
+        self.predictions += 1
+        self._latency_ms.append(1e3 * (time.monotonic() - t_start))
+        res.message = f"{horizon} steps in {self._latency_ms[-1]:.1f} ms"
         return res
 
 

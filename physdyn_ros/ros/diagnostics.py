@@ -1,0 +1,52 @@
+"""`/diagnostics` (diagnostic_msgs/DiagnosticArray) from a node, at a steady rate, as ROS tools expect
+(rqt_robot_monitor, the diagnostic aggregator, Foxglove): one DiagnosticStatus named "<node>: <what>" whose
+key/values are the counters the node already keeps."""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+#: (level, message, {key: value}) of the node right now.
+Report = tuple[bytes, str, dict[str, object]]
+
+
+class Diagnostics:
+    """Publish `report()` on /diagnostics every `period` s (and on demand with publish())."""
+
+    def __init__(self, node: Node, what: str, report: Callable[[], Report], period: float = 1.0,
+                 callback_group=None) -> None:
+        self.node, self.report = node, report
+        self.name = f"{node.get_name()}: {what}"
+        self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.timer = node.create_timer(period, self.publish, callback_group=callback_group)
+
+    def status(self) -> DiagnosticStatus:
+        try:
+            level, message, values = self.report()
+        except Exception as exc:  # noqa: BLE001 - a broken report is itself a diagnostic
+            level, message, values = ERROR, f"diagnostics failed: {type(exc).__name__}: {exc}", {}
+        return DiagnosticStatus(level=level, name=self.name, message=message,
+                                hardware_id=self.node.get_fully_qualified_name(),
+                                values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
+
+    def publish(self) -> None:
+        msg = DiagnosticArray(status=[self.status()])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.pub.publish(msg)
+
+
+class RefusalWindow:
+    """WARN for `hold` seconds after the last refusal (a monitor polling once a second must not miss it)."""
+
+    def __init__(self, hold: float = 10.0) -> None:
+        self.hold, self.seen, self.last = hold, 0, -float("inf")
+
+    def level(self, refusals: int) -> bytes:
+        if refusals != self.seen:
+            self.seen, self.last = refusals, time.monotonic()
+        return WARN if time.monotonic() - self.last < self.hold else OK
