@@ -1,0 +1,60 @@
+"""Coulomb sliding as a per-step prior: the network predicts a residual on top of it (model.prior: sliding).
+
+Hybrids of an analytic model and a learned residual beat both pure physics and pure learning on pushing
+(Ajay et al. 2018, 2019), and on shapes outside the training families plain Coulomb sliding was the best
+motion predictor measured (issue 11: 0.31 cm median final position against 1.32 cm for the learned model).
+The prior is exact constant-deceleration kinematics over one step of dt, in frame C:
+  * horizontal velocity: |v_xy| decreases by mu g per second along its own direction, stopping at zero;
+  * spin about z: |w_z| decreases by mu g / r per second (r: RMS horizontal radius of the cloud, the
+    friction lever arm over the radius of gyration), stopping at zero;
+  * vertical motion and tilt: no prior (zero); the residual predicts them, and toppling.
+So a network whose residual is zero (the zero-initialised head) starts as the analytic sliding baseline
+(learn/baselines.analytic_sliding; test_prior.py checks that stepping this prior reproduces it).
+"""
+from __future__ import annotations
+
+from typing import Tuple
+
+import torch
+from torch import Tensor
+
+from ..conventions import DT, GRAVITY
+
+#: Smallest lever arm (m) for the spin deceleration: a needle-thin cloud must not stop spinning at once.
+MIN_RADIUS = 0.01
+
+
+def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
+                 dt: float = DT) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
+    """One step of the prior. vel, angvel (..., 3) physical in C; decel (...,) = mu g (m/s^2); spin_decel
+    (...,) = mu g / r (rad/s^2). Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
+    a = decel[..., None]
+    vxy = vel[..., :2]
+    speed = torch.linalg.vector_norm(vxy, dim=-1, keepdim=True)
+    direction = vxy / speed.clamp_min(1e-9)
+    t_slide = torch.minimum(speed / a.clamp_min(1e-9), torch.full_like(speed, dt))
+    dist = speed * t_slide - 0.5 * a * t_slide * t_slide
+    zeros1 = torch.zeros_like(speed)
+    d_pos = torch.cat([dist * direction, zeros1], -1)
+    # new - old (not a change of speed times the direction): a stopped object's velocity is then exactly 0
+    d_vel = torch.cat([torch.clamp(speed - a * dt, min=0.0) * direction - vxy, zeros1], -1)
+
+    alpha = spin_decel[..., None]
+    wz = angvel[..., 2:3]
+    w_abs = wz.abs()
+    sign = torch.sign(wz)
+    t_spin = torch.minimum(w_abs / alpha.clamp_min(1e-9), torch.full_like(w_abs, dt))
+    d_yaw = sign * (w_abs * t_spin - 0.5 * alpha * t_spin * t_spin)
+    d_wz = sign * torch.clamp(w_abs - alpha * dt, min=0.0) - wz
+    zeros2 = torch.zeros_like(vxy)
+    d_rot = torch.cat([zeros2, d_yaw], -1)
+    d_angvel = torch.cat([zeros2, d_wz], -1)
+    return d_vel, d_angvel, d_pos, d_rot
+
+
+def decelerations(cloud_c: Tensor, friction: float) -> Tuple[Tensor, Tensor]:
+    """(mu g, mu g / r) per cloud (B, P, 3) in C, centred: r = RMS horizontal distance from the centroid."""
+    xy = cloud_c[..., :2] - cloud_c[..., :2].mean(dim=-2, keepdim=True)
+    radius = torch.sqrt((xy * xy).sum(-1).mean(-1)).clamp_min(MIN_RADIUS)
+    decel = torch.full_like(radius, float(friction) * GRAVITY)
+    return decel, decel / radius
