@@ -117,7 +117,12 @@ class Shape:
     """A rigid object shape in its object frame (origin = centre of mass, z = up, metres).
 
     `convex` says whether the convex hull is an exact collision shape (convex solids); otherwise the simulator
-    uses a convex decomposition. `points` are NUM_POINTS uniform surface samples in the same frame.
+    uses a convex decomposition: the shape's own `parts` when it has them, else V-HACD. `points` are NUM_POINTS
+    uniform surface samples in the same frame.
+
+    `parts` (optional, shapes built from convex pieces): vertex arrays (P_i, 3) whose convex hulls together
+    make up the solid, in the same frame. They are an exact collision decomposition; the mesh (`vertices`,
+    `faces`) stays the surface of the whole solid, so mass properties and clouds come from the union.
     """
 
     name: str
@@ -127,6 +132,7 @@ class Shape:
     convex: bool
     points: np.ndarray  # (NUM_POINTS, 3) float32
     params: dict = field(default_factory=dict)  # generator parameters (procedural) or source file (loaded)
+    parts: tuple[np.ndarray, ...] | None = None  # convex pieces (vertex arrays), object frame; None: not known
     _hull: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False)
 
     @property
@@ -153,20 +159,27 @@ class Shape:
         h = hashlib.sha256()
         h.update(np.ascontiguousarray(self.vertices, dtype=np.float64).tobytes())
         h.update(np.ascontiguousarray(self.faces, dtype=np.int64).tobytes())
+        for part in self.parts or ():  # shapes without parts keep their earlier fingerprints (V-HACD cache keys)
+            h.update(np.ascontiguousarray(part, dtype=np.float64).tobytes())
         return h.hexdigest()
 
 
 def make_shape(name: str, category: str, vertices: np.ndarray, faces: np.ndarray, convex: bool,
-               seed: int = 0, params: dict | None = None, num_points: int = NUM_POINTS) -> Shape:
+               seed: int = 0, params: dict | None = None, num_points: int = NUM_POINTS,
+               parts: list[np.ndarray] | tuple[np.ndarray, ...] | None = None) -> Shape:
     """Build a Shape from a closed mesh in any frame with z up: orients it outward, moves the origin to its centre
-    of mass and samples the surface cloud."""
+    of mass and samples the surface cloud. `parts` (convex pieces of the solid, same frame) move with it."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = orient_outward(vertices, np.asarray(faces, dtype=np.int64))
     mp = mass_properties(vertices, faces, density=1.0)
     vertices = vertices - mp.com
     points = sample_surface(vertices, faces, num_points, seed)
+    if parts is not None:
+        parts = tuple(np.asarray(q, dtype=np.float64).reshape(-1, 3) - mp.com for q in parts)
+        if not parts:
+            raise ValueError("parts must hold at least one convex piece")
     return Shape(name=name, category=category, vertices=vertices, faces=faces, convex=bool(convex),
-                 points=points, params=dict(params or {}))
+                 points=points, params=dict(params or {}), parts=parts)
 
 
 def shape_from_points(points: np.ndarray, name: str = "hull", category: str = "points") -> Shape:

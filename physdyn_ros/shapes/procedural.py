@@ -1,4 +1,6 @@
 """Procedural shape categories (the paper's six): box, cylinder, bottle, mug, trashcan, speaker.
+(The broader world's further families live in `families.py`; `make_procedural` and `generate_shapes` accept
+both.)
 
 Every category is a parametric family: a shape seed draws continuous parameters (sizes, proportions, tapers,
 wall thicknesses, profiles, bevels, polygon counts), so a category yields as many distinct shapes as seeds.
@@ -231,9 +233,14 @@ def shape_seed(category: str, index: int, seed: int) -> int:
 
 
 def make_procedural(category: str, index: int, seed: int = 0) -> Shape:
-    """Procedural shape number `index` of `category` for master `seed` (a pure function of its arguments)."""
+    """Procedural shape number `index` of `category` for master `seed` (a pure function of its arguments).
+    `category` is one of the paper's six or one of the new families of `families.py`."""
     if category not in _BUILDERS:
-        raise ValueError(f"unknown shape category {category!r}; known: {', '.join(CATEGORIES)}")
+        from .families import ALL_CATEGORIES, FAMILIES, make_family_shape
+
+        if category in FAMILIES:
+            return make_family_shape(category, index, seed)
+        raise ValueError(f"unknown shape category {category!r}; known: {', '.join(ALL_CATEGORIES)}")
     if index < 0:
         raise ValueError(f"shape index must be >= 0, got {index}")
     s = shape_seed(category, index, seed)

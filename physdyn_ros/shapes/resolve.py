@@ -1,9 +1,10 @@
-"""One name for every shape source: a mesh file, a procedural category, or a pybullet_data test mesh."""
+"""One name for every shape source: a mesh file, a procedural category or family, or a pybullet_data test mesh."""
 from __future__ import annotations
 
 from .core import Shape
 from .meshes import PYBULLET_DATA_CATEGORY, load_mesh, pybullet_data_meshes
-from .procedural import CATEGORIES, make_procedural
+from .families import ALL_CATEGORIES
+from .procedural import make_procedural
 
 
 def resolve_shape(category: str, shape_seed: int = 0, mesh_path: str = "") -> Shape:
@@ -25,7 +26,7 @@ def resolve_shape(category: str, shape_seed: int = 0, mesh_path: str = "") -> Sh
             except ValueError as exc:
                 errors.append(str(exc))
         raise ValueError("no usable pybullet_data mesh: " + "; ".join(errors[:3]))
-    if category not in CATEGORIES:
-        raise ValueError(f"unknown category {category!r}; use one of {', '.join(CATEGORIES)}, "
+    if category not in ALL_CATEGORIES:
+        raise ValueError(f"unknown category {category!r}; use one of {', '.join(ALL_CATEGORIES)}, "
                          f"{PYBULLET_DATA_CATEGORY}, or a mesh file")
     return make_procedural(category, int(shape_seed))
