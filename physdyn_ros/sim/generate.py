@@ -49,7 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="YAML generator config (a path, or a name in config/, "
                                          "e.g. generate_combined); command-line options override it")
     parser.add_argument("--categories", help="comma-separated categories: box, cylinder, bottle, mug, trashcan, "
-                                             "speaker, pybullet_data (test only), custom (--mesh)")
+                                             "speaker, the families of physdyn_ros.shapes.FAMILIES (superellipsoid, "
+                                             "ring, dumbbell, ...; docs/architecture.md), pybullet_data (test "
+                                             "only), custom (--mesh)")
     parser.add_argument("--num-sims", type=int, help="total simulations (all splits)")
     parser.add_argument("--shapes-per-category", type=int, help="distinct shapes per procedural category")
     parser.add_argument("--seed", type=int, help="master seed (shapes, splits, pushes)")
@@ -63,7 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mesh", dest="meshes", action="append", metavar="PATH",
                         help="a user mesh (OBJ/STL/PLY, metres, z up) or a folder of them, added as category "
                              "'custom'; repeat for several")
-    parser.add_argument("--leave-out", help="comma-separated categories put entirely in the test split")
+    parser.add_argument("--leave-out", help="comma-separated categories put entirely in the test split (held "
+                                            "out of training; reported apart in the manifest's test_groups)")
     parser.add_argument("--test-fraction", type=float, help="fraction of each category's shapes in test")
     parser.add_argument("--collision", choices=["auto", "hull"],
                         help="auto: convex decomposition for concave shapes; hull: convex hull for all")
@@ -119,7 +122,7 @@ def _expand_meshes(items: list[str]) -> list[str]:
 
 def resolve_params(args: argparse.Namespace) -> dict[str, Any]:
     """Defaults <- YAML config <- command line, validated. Raises ValueError on bad input."""
-    from ..shapes import CATEGORIES, PYBULLET_DATA_CATEGORY
+    from ..shapes import ALL_CATEGORIES, PYBULLET_DATA_CATEGORY
     from .push import PushConfig
     from .simulator import SimConfig
 
@@ -145,7 +148,7 @@ def resolve_params(args: argparse.Namespace) -> dict[str, Any]:
     if p["meshes"] and "custom" not in p["categories"]:
         p["categories"].append("custom")
 
-    known = set(CATEGORIES) | {PYBULLET_DATA_CATEGORY, "custom"}
+    known = set(ALL_CATEGORIES) | {PYBULLET_DATA_CATEGORY, "custom"}
     if not p["categories"]:
         raise ValueError("no categories given")
     bad = [c for c in p["categories"] if c not in known]
@@ -372,6 +375,18 @@ def _adopt_shard(path: Path, entry: dict, j: int, p: dict, num_shapes: int) -> s
     return digest
 
 
+def test_groups(p: dict[str, Any]) -> dict[str, list[str]]:
+    """The categories of the test split by kind: `in_category` (shapes held out of categories that are also
+    trained on), `held_out` (the `leave_out` categories: whole categories never trained on, e.g. the held-out
+    families) and `test_only` (pybullet_data: never trained on in any dataset)."""
+    from ..data.splits import TEST_ONLY_CATEGORIES
+
+    cats = list(p["categories"])
+    return {"in_category": [c for c in cats if c not in p["leave_out"] and c not in TEST_ONLY_CATEGORIES],
+            "held_out": [c for c in cats if c in p["leave_out"] and c not in TEST_ONLY_CATEGORIES],
+            "test_only": [c for c in cats if c in TEST_ONLY_CATEGORIES]}
+
+
 def _counts(out: Path, manifest: dict) -> dict:
     import numpy as np
 
@@ -393,9 +408,14 @@ def _counts(out: Path, manifest: dict) -> dict:
         per_cat[c] = {"shapes": int((cat_of == c).sum()), "sims": int(m.sum()), "toppled": int(top[m].sum())}
     per_split = {s: {"shapes": len(manifest["splits"][s]), "sims": int((split_arr[idx] == s).sum())}
                  for s in manifest["splits"]}
+    per_group = {}
+    for group, cats in test_groups(manifest["generator"]).items():
+        shape_in = (split_arr == "test") & np.isin(cat_of, cats)
+        per_group[group] = {"categories": cats, "shapes": int(shape_in.sum()), "sims": int(shape_in[idx].sum())}
     return {"sims": int(len(idx)), "shapes": len(manifest["shapes"]), "shards": len(manifest["shards"]),
             "toppled": int(top.sum()), "toppled_fraction": round(float(top.mean()), 4),
-            "mean_length": round(float(length.mean()), 2), "categories": per_cat, "splits": per_split}
+            "mean_length": round(float(length.mean()), 2), "categories": per_cat, "splits": per_split,
+            "test_groups": per_group}
 
 
 # ------------------------------------------------------------------------------------------------------- run
@@ -452,7 +472,7 @@ def generate(out: str | os.PathLike, p: dict[str, Any], workers: int | None = No
         s.hull()  # computed here (open3d) so worker processes never touch open3d
     manifest = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "generator": p, "seed": p["seed"], "dt": DT,
                 "num_frames": p["num_frames"], "num_points": NUM_POINTS, "shapes": entries, "splits": splits,
-                "shards": plan, "counts": {}, "complete": False}
+                "test_groups": test_groups(p), "shards": plan, "counts": {}, "complete": False}
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "shards").mkdir(exist_ok=True)
@@ -576,6 +596,10 @@ def run(args: argparse.Namespace) -> int:
         c = manifest["counts"]
         print(f"dataset {args.out}: {c['sims']} simulations of {c['shapes']} shapes, "
               f"{c['toppled_fraction']:.0%} toppled ({time.time() - t:.0f} s)")
+        for group, g in c["test_groups"].items():
+            if g["shapes"]:
+                print(f"  test, {group.replace('_', ' ')}: {g['shapes']} shapes, {g['sims']} simulations "
+                      f"({', '.join(g['categories'])})")
     else:
         print(f"dataset {args.out}: {done}/{p['num_sims']} simulations done; run the command without "
               f"--shard-range (or with the remaining ranges) to finish it")
