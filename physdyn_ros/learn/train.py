@@ -81,6 +81,15 @@ class DataConfig:
     categories: Optional[list[str]] = None
     exclude_categories: Optional[list[str]] = None
     max_train_sims: Optional[int] = None  # use only the first N training simulations (debugging, overfit tests)
+    # Clouds as a robot's depth camera sees them (learn/views.py): this fraction of the training windows sees
+    # only the visible side from a random viewpoint, with view_noise m of Gaussian noise.
+    partial_views: float = 0.0
+    view_noise: float = 0.002
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= float(self.partial_views) <= 1.0 or float(self.view_noise) < 0:
+            raise ValueError(f"data.partial_views must be in [0, 1] and data.view_noise >= 0, got "
+                             f"{self.partial_views}, {self.view_noise}")
 
 
 def _section(cls: type, data: Optional[dict[str, Any]], name: str) -> Any:
@@ -341,7 +350,8 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
     if d.enabled:
         model = torch.nn.parallel.DistributedDataParallel(core, device_ids=[dev.index] if dev.type == "cuda" else None)
 
-    ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points)
+    ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points, partial=dcfg.get("partial_views", 0.0),
+                       noise=dcfg.get("view_noise", 0.0))
     sampler = DistributedSampler(ds, num_replicas=d.world, rank=d.rank, shuffle=True, seed=tcfg["seed"])
     if tcfg["batch_size"] % d.world:
         raise ValueError(f"train.batch_size {tcfg['batch_size']} must be divisible by the {d.world} processes")

@@ -8,6 +8,10 @@ A window of T frames starting at frame s gives the network
                      their centroid and rotated into frame C (learn/frames.py)
     vel, angvel (T, 3) states in C;  d_vel, d_angvel, d_pos, d_rot (T-1, 3) increments in C
     topple (T-1,)    label of the frame after each step (the paper's y_t = toppled[t+1]).
+    com (3,)         the centre of mass relative to the cloud's centroid, in C (what a partial view hides)
+With `partial` > 0 that fraction of the windows sees the object as one depth camera would (learn/views.py: the
+visible side from a random viewpoint above the table, `noise` m of Gaussian sensor noise) instead of its whole
+surface: the centroid, heading and shape feature then come from the visible points only, as in deployment.
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 import torch
 
-from . import frames
+from . import frames, views
 
 _FIELDS = ("shape_index", "scale", "friction", "length", "topple_index", "pos", "quat", "lin_vel", "ang_vel",
            "toppled")
@@ -148,11 +152,28 @@ def _subsample_index(batch: int, available: int, wanted: int, rng: Optional[np.r
     return np.broadcast_to(np.concatenate([base, extra], axis=1), (batch, wanted))
 
 
+def partial_clouds(cloud: np.ndarray, partial: float, noise: float, rng: np.random.Generator) -> np.ndarray:
+    """Replace a random `partial` fraction of the clouds (B, N, 3) (world axes, at the centre of mass) by their
+    visible side from a random camera (resampled to N points) plus Gaussian noise of `noise` m."""
+    cloud = np.array(cloud, dtype=np.float64)
+    rows = np.flatnonzero(rng.random(len(cloud)) < partial)
+    if len(rows):
+        part = cloud[rows]
+        mask = views.visible(part, views.random_view_dirs(len(rows), rng))
+        idx = views.sample_visible(mask, part.shape[1], rng)
+        part = np.take_along_axis(part, idx[..., None], axis=1)
+        cloud[rows] = part + rng.normal(0.0, noise, part.shape) if noise > 0 else part
+    return cloud
+
+
 def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length: int, num_points: int,
-                 rng: Optional[np.random.Generator] = None) -> dict[str, torch.Tensor]:
+                 rng: Optional[np.random.Generator] = None, partial: float = 0.0, noise: float = 0.0,
+                 view_rng: Optional[np.random.Generator] = None) -> dict[str, torch.Tensor]:
     """Windows of `length` frames of simulations `index` starting at `starts`, in frame C, as float32 tensors.
 
     rng: a generator for random point subsets (training); None gives the fixed subset (evaluation).
+    partial / noise: the fraction of windows seen as partial views and their sensor noise (m); their views
+    come from view_rng (default: rng, else a fixed seed, so evaluation is reproducible).
     Extra keys: heading (B,), centroid (B, 3) of the frame placement, start (B,), sim (B,).
     """
     index = np.asarray(index, dtype=np.int64)
@@ -164,14 +185,18 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     pos, quat = sims.pos[pick], sims.quat[pick]
     vel, angvel = sims.lin_vel[pick], sims.ang_vel[pick]
     cloud_world = frames.pose_cloud(sims.points[sims.shape_index[index]], sims.scale[index], quat[:, 0])
+    if partial > 0:
+        gen = view_rng if view_rng is not None else rng if rng is not None else np.random.default_rng(0)
+        cloud_world = partial_clouds(cloud_world, partial, noise, gen)
     sub = _subsample_index(len(index), cloud_world.shape[1], num_points, rng)
     canon = frames.canonicalize_cloud(cloud_world, keep=sub)
     cloud = canon.points
     heading = np.asarray(canon.heading).reshape(len(index))
     h = heading[:, None]
     inc = frames.world_increments(pos, quat, vel, angvel)
+    # the posed cloud is centred at the centre of mass: the COM seen from the centroid is -centroid
     out = {"cloud": cloud, "vel": frames.world_to_c(vel, h), "angvel": frames.world_to_c(angvel, h),
-           "topple": sims.toppled[pick][:, 1:].astype(np.float32)}
+           "topple": sims.toppled[pick][:, 1:].astype(np.float32), "com": frames.world_to_c(-canon.centroid, heading)}
     for k, v in inc.items():
         out[k] = frames.world_to_c(v, h)
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for k, v in out.items()}
@@ -209,7 +234,11 @@ class WindowDataset(torch.utils.data.Dataset):
     without state and a resumed run continue exactly (learn/train.py).
     """
 
-    def __init__(self, sims: SimArrays, window: int = 15, num_points: int = 1024, seed: int = 0) -> None:
+    def __init__(self, sims: SimArrays, window: int = 15, num_points: int = 1024, seed: int = 0,
+                 partial: float = 0.0, noise: float = 0.0) -> None:
+        if not 0.0 <= partial <= 1.0 or noise < 0:
+            raise ValueError(f"partial must be in [0, 1] and noise >= 0, got {partial}, {noise}")
+        self.partial, self.noise = float(partial), float(noise)
         if window < 2:
             raise ValueError("window must be >= 2 frames")
         if sims.num_frames < window:
@@ -223,7 +252,7 @@ class WindowDataset(torch.utils.data.Dataset):
     def batch(self, index: Sequence[int] | np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         index = np.asarray(index, dtype=np.int64)
         starts = random_starts(self.sims, index, self.window, rng)
-        return make_windows(self.sims, index, starts, self.window, self.num_points, rng)
+        return make_windows(self.sims, index, starts, self.window, self.num_points, rng, self.partial, self.noise)
 
     def __getitems__(self, indices: list[int]) -> dict[str, torch.Tensor]:
         return self.batch(indices, self._rng)
@@ -232,10 +261,12 @@ class WindowDataset(torch.utils.data.Dataset):
         return {k: v[0] for k, v in self.batch([int(i)], self._rng).items()}
 
 
-def sequences(sims: SimArrays, horizon: int, num_points: int,
-              index: Optional[np.ndarray] = None) -> dict[str, torch.Tensor]:
-    """Whole evaluation sequences: frames 0..horizon of each simulation, the cloud posed at frame 0."""
+def sequences(sims: SimArrays, horizon: int, num_points: int, index: Optional[np.ndarray] = None,
+              partial: float = 0.0, noise: float = 0.0, view_seed: int = 0) -> dict[str, torch.Tensor]:
+    """Whole evaluation sequences: frames 0..horizon of each simulation, the cloud posed at frame 0
+    (partial > 0: that fraction seen as partial views, reproducible by view_seed)."""
     if horizon + 1 > sims.num_frames:
         raise ValueError(f"horizon {horizon} needs {horizon + 1} frames; the dataset stores {sims.num_frames}")
     index = np.arange(len(sims)) if index is None else np.asarray(index, dtype=np.int64)
-    return make_windows(sims, index, np.zeros(len(index), dtype=np.int64), horizon + 1, num_points, None)
+    return make_windows(sims, index, np.zeros(len(index), dtype=np.int64), horizon + 1, num_points, None,
+                        partial, noise, np.random.default_rng(view_seed))
