@@ -69,3 +69,37 @@ def test_package_xml_lists_every_ros_package_the_code_imports():
     assert imported, "no ROS imports found: the scan is broken"
     missing = sorted(imported - declared)
     assert not missing, f"package.xml lacks <depend>/<exec_depend> for {missing}"
+
+
+def test_requirements_pin_what_the_code_imports():
+    """Issue 15.8: ruamel.yaml was imported but not pinned, psutil pinned but never imported."""
+    import ast
+    import importlib.metadata as md
+    import re
+    import sys
+
+    pinned = {re.split(r"[=<>\[ ]", ln.strip(), maxsplit=1)[0].lower().replace("_", "-")
+              for ln in (ROOT / "requirements.txt").read_text().splitlines() if ln.strip() and ln[0] != "#"}
+    owners = md.packages_distributions()
+    ours = {"physdyn_ros", "conftest", "learn_support", "test_nodes_support", "test_bag_support"}
+    imported: dict[str, str] = {}
+    for path in [*(ROOT / "physdyn_ros").rglob("*.py"), *(ROOT / "test").glob("*.py"), *(ROOT / "bench").glob("*.py")]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module] if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 else []
+            for name in names:
+                top = name.split(".")[0]
+                if top not in sys.stdlib_module_names and top not in ours and not top.startswith("test_"):
+                    imported.setdefault(top, str(path.relative_to(ROOT)))
+    unpinned = []
+    for top, where in sorted(imported.items()):
+        dists = {d.lower().replace("_", "-") for d in owners.get(top, [])}
+        if not dists:
+            continue  # a module of the ROS wheels or of the generated interfaces
+        if not dists & pinned and not any(d.startswith("ros-") for d in dists):
+            unpinned.append(f"{top} ({', '.join(sorted(dists))}, imported by {where})")
+    assert not unpinned, f"requirements.txt does not pin: {unpinned}"
+    used = {d.lower().replace("_", "-") for t in imported for d in owners.get(t, [])}
+    tools = ("ros-", "colcon-", "catkin-pkg", "pytest")  # build and test tools: run, not imported
+    unused = sorted(d for d in pinned if not d.startswith(tools) and d not in used)
+    assert not unused, f"pinned but never imported: {unused}"
