@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, List, Optional, Tuple
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -30,6 +31,9 @@ OUT_DIM = 13
 #: rotation about z commutes with normalisation and relative losses keep their geometric meaning.
 STAT_KEYS = ("vel", "angvel", "d_vel", "d_angvel", "d_pos", "d_rot", "cloud")
 CELLS = ("lstm", "mlp")
+#: Rows per call of the fused inference kernel on the CPU: a block's gate buffers (4 x rows x 4 H floats) stay in
+#: the L2 cache; larger batches run block after block.
+KERNEL_ROWS = 256
 NORMS = ("batch", "layer", "none")
 
 
@@ -121,6 +125,9 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
                   steps: int) -> Tuple[Tensor, Tensor]:
     """Closed-loop LSTM roll-out, compiled by TorchScript: ~25 tensor ops per step and no Python in the loop.
 
+    The differentiable kernel (training with feedback, gradient-based planning: autograd on). Without autograd
+    rollout_raw runs _fused_lstm_rollout or, at batch 1 on the CPU, _numpy_lstm_rollout (same function, faster).
+
     x0 (B, 6): normalised [v, w] at frame 0. x_obs (B, K, 6): observed inputs for frames 1..K ("steps in"),
     used instead of the model's own. const0 (B, 4H): layer-0 bias plus the (constant) shape-feature term.
     Weights are transposed with gates ordered (i, f, o, g). w_skip (6, 13) maps the step's input to the outputs
@@ -159,8 +166,129 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
     return torch.stack(outs, 1), torch.stack(xs, 1)
 
 
+def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tensor], b: List[Tensor], w_head: Tensor,
+                        b_head: Tensor, gain: Tensor, steps: int) -> Tuple[Tensor, Tensor]:
+    """Inference roll-out (no autograd): the same function as _lstm_rollout in fewer, allocation-free operations.
+
+    One matrix product per layer and step: a row buffer z = [x, h_0, ..., h_{L-1}] (B, 6 + L H) holds the step's
+    input and every layer's hidden state, so layer 0 multiplies the view [x, h_0] and layer l the view
+    [h_{l-1}, h_l] by one stacked weight matrix (w[l]: (6 + H or 2 H, 4 H)), the bias fused into addmm; the head
+    (and input_skip) is one product of all of z with w_head (rows of the middle layers zero).
+    Elementwise work uses only sigmoid (torch's tanh costs 3.4x its sigmoid per element on an AVX2 CPU): the g-gate
+    columns of w, b and const0 are pre-scaled by 2, so tanh(a) = 2 sigmoid(2 a) - 1, and the cell state is kept
+    as c' = -2 c, so that tanh(c) = 1 - 2 sigmoid(c'):
+        s = sigmoid(g)                                  (i, f, o, g gates; one call)
+        c' <- s_f c' - 4 s_i s_g + 2 s_i                (= -2 (f c + i tanh(g)))
+        h  = s_o - 2 s_o sigmoid(c')                    (= o tanh(c))
+    17 operations per step for 2 layers (the TorchScript kernel above: ~25 plus as many slices), all writing into
+    buffers made once. x_obs, const0, gain: as _lstm_rollout. Returns raw outputs (B, steps, 13) and the inputs
+    used (B, steps + 1, 6).
+    """
+    batch = x0.shape[0]
+    layers = len(w)
+    hidden = w[layers - 1].shape[1] // 4
+    dtype = x0.dtype
+    z = torch.zeros(batch, 6 + layers * hidden, dtype=dtype, device=x0.device)
+    z[:, :6] = x0
+    x = z[:, :6]
+    cs: List[Tensor] = []
+    hs: List[Tensor] = []
+    zin: List[Tensor] = []
+    for layer in range(layers):
+        cs.append(torch.zeros(batch, hidden, dtype=dtype, device=x0.device))
+        lo = 6 + layer * hidden
+        hs.append(z[:, lo:lo + hidden])
+        zin.append(z[:, :6 + hidden] if layer == 0 else z[:, lo - hidden:lo + hidden])
+    g = torch.empty(batch, 4 * hidden, dtype=dtype, device=x0.device)
+    s = torch.empty(batch, 4 * hidden, dtype=dtype, device=x0.device)
+    sc = torch.empty(batch, hidden, dtype=dtype, device=x0.device)
+    s_i = s[:, :hidden]
+    s_f = s[:, hidden:2 * hidden]
+    s_o = s[:, 2 * hidden:3 * hidden]
+    s_g = s[:, 3 * hidden:]
+    ys = torch.empty(batch, steps, w_head.shape[1], dtype=dtype, device=x0.device)
+    xs = torch.empty(batch, steps + 1, 6, dtype=dtype, device=x0.device)
+    xs[:, 0] = x0
+    observed = x_obs.shape[1]
+    for t in range(steps):
+        for layer in range(layers):
+            if layer == 0:
+                torch.addmm(const0, zin[0], w[0], out=g)
+            else:
+                torch.addmm(b[layer], zin[layer], w[layer], out=g)
+            torch.sigmoid(g, out=s)
+            c = cs[layer]
+            c.mul_(s_f).addcmul_(s_i, s_g, value=-4.0).add_(s_i, alpha=2.0)
+            torch.sigmoid(c, out=sc)
+            torch.addcmul(s_o, s_o, sc, value=-2.0, out=hs[layer])
+        y = ys[:, t]
+        torch.addmm(b_head, z, w_head, out=y)
+        if t < observed:
+            x.copy_(x_obs[:, t])
+        else:
+            x.addcmul_(y[:, :6], gain)
+        xs[:, t + 1] = x
+    return ys, xs
+
+
+def _numpy_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, w0: np.ndarray, w: List[np.ndarray], w_head: np.ndarray,
+                        steps: int) -> Tuple[np.ndarray, np.ndarray]:
+    """Batch-1 roll-out in numpy: the latency path (torch dispatch costs more than the arithmetic at batch 1, and
+    its matrix-vector products are ~2x slower than numpy's BLAS on these sizes).
+
+    x0 (6,), x_obs (K, 6) float32. Row vector z = [x, 1, h_0, 1, h_1, ...]: the 1 entries carry the biases inside
+    the products. Only tanh is used (numpy has no sigmoid; sigmoid(a) = (1 + tanh(a / 2)) / 2): w0 (layer 0, rows
+    [x, 1 (bias + shape-feature term), h_0]) and w[l] (rows [h_{l-1}, 1, h_l]) have gate columns (o, i, f, g),
+    the o, i, f columns halved, and h rows halved because z stores 2 h = (1 + tanh(a_o / 2)) tanh(c).
+    w_head (len(z), 19): columns the 13 outputs, then the next input x + gain * outputs[:6] (the feedback folded
+    into the product). Returns raw outputs (steps, 13) and inputs used (steps + 1, 6), float32.
+    """
+    layers = len(w) + 1
+    hidden = w0.shape[1] // 4
+    z = np.zeros(7 + layers * (hidden + 1) - 1, np.float32)
+    z[:6] = x0
+    views = []
+    for layer in range(layers):
+        lo = 7 + layer * (hidden + 1)
+        z[lo - 1] = 1.0
+        inp = z[:lo + hidden] if layer == 0 else z[lo - hidden - 1:lo + hidden]
+        q = np.zeros(5 * hidden, np.float32)  # tanh of the gates (o, i, f, g) then the cell state c
+        # per layer: product input, weights, tanh(gates) view, (o, i, f) view, (i, f), (g, c), c, o, h slot
+        views.append((inp, w0 if layer == 0 else w[layer - 1], q[:4 * hidden], q[:3 * hidden],
+                      q[hidden:3 * hidden], q[3 * hidden:], q[4 * hidden:], q[:hidden], z[lo:lo + hidden]))
+    out = np.empty((steps, OUT_DIM + 6), np.float32)
+    rows = list(out)
+    x = z[:6]
+    gates = np.empty(4 * hidden, np.float32)
+    prod = np.empty(2 * hidden, np.float32)
+    p_ig, p_fc = prod[:hidden], prod[hidden:]
+    tc = np.empty(hidden, np.float32)
+    one, half = np.float32(1.0), np.float32(0.5)
+    dot, tanh, add, mul, copyto = np.dot, np.tanh, np.add, np.multiply, np.copyto
+    observed = len(x_obs)
+    for t in range(steps):
+        for inp, weights, t4, u3, u_if, g_c, c, u_o, h in views:
+            dot(inp, weights, out=gates)
+            tanh(gates, out=t4)
+            add(u3, one, out=u3)  # 2 sigmoid(a) for o, i, f
+            mul(u_if, g_c, out=prod)  # (2 i tanh(g), 2 f c)
+            add(p_ig, p_fc, out=c)
+            mul(c, half, out=c)  # c <- f c + i tanh(g)
+            tanh(c, out=tc)
+            mul(u_o, tc, out=h)  # 2 o tanh(c)
+        row = rows[t]
+        dot(z, w_head, out=row)
+        if t < observed:
+            row[OUT_DIM:] = x_obs[t]
+        copyto(x, row[OUT_DIM:])
+    xs = np.empty((steps + 1, 6), np.float32)
+    xs[0] = x0
+    xs[1:] = out[:, OUT_DIM:]
+    return out[:, :OUT_DIM], xs
+
+
 def _compile(fn: Any) -> Any:
-    """TorchScript the roll-out kernel: it removes Python from the 60-step loop (~3x faster at batch 1) and, unlike
+    """TorchScript a roll-out kernel: it removes Python from the 60-step loop (~3x faster at batch 1) and, unlike
     torch.compile, needs no C++ toolchain or long compilation at load. torch marks TorchScript deprecated; if a
     future torch drops it, the same function runs eagerly (slower, identical results)."""
     import warnings
@@ -174,6 +302,7 @@ def _compile(fn: Any) -> Any:
 
 
 _lstm_rollout = _compile(_lstm_rollout)
+_fused_lstm_rollout = _compile(_fused_lstm_rollout)
 
 
 class DynamicsModel(nn.Module):
@@ -280,6 +409,63 @@ class DynamicsModel(nn.Module):
                         w_skip=w_skip)
         return fast
 
+    def _kernel(self, fast: dict[str, Any]) -> dict[str, Any]:
+        """Weights of the inference kernels (_fused_lstm_rollout, _numpy_lstm_rollout), derived from `fast` once
+        and kept in it: `fast` is the cached dict whenever autograd is off, so they are rebuilt only when a
+        parameter changes. All rescalings are by powers of 2 (exact); only the numpy head's folded feedback
+        (identity + gain * weights) rounds, by one float32 ulp."""
+        kernel = fast.get("kernel")
+        if kernel is None:
+            with torch.inference_mode(False), torch.no_grad():
+                kernel = self._build_kernel(fast)
+            fast["kernel"] = kernel
+        return kernel
+
+    def _build_kernel(self, fast: dict[str, Any]) -> dict[str, Any]:
+        hidden, layers = self.cfg.hidden_size, self.cfg.num_layers
+        w_x, w_h, bias = fast["w_x"], fast["w_h"], fast["bias"]
+        w_out, b_out, w_skip = fast["w_out"], fast["b_out"], fast["w_skip"]
+        # torch kernel: gates (i, f, o, g), g columns doubled (tanh(a) = 2 sigmoid(2 a) - 1)
+        two = torch.ones(4 * hidden, dtype=w_out.dtype, device=w_out.device)
+        two[3 * hidden:] = 2.0
+        w = [torch.cat([w_x[0][:6], w_h[0]], 0) * two] + [torch.cat([w_x[l], w_h[l]], 0) * two
+                                                         for l in range(1, layers)]
+        head = w_out.new_zeros(6 + layers * hidden, OUT_DIM)
+        if w_skip.shape[0]:
+            head[:6] = w_skip
+        head[6 + (layers - 1) * hidden:] = w_out
+        kernel: dict[str, Any] = {
+            "w": [m.contiguous() for m in w], "b": [b * two for b in bias],
+            "w_feature": (w_x[0][6:] * two).contiguous(), "head": head.contiguous(), "b_head": b_out.contiguous(),
+            "gain": fast["gain"].contiguous()}
+        if w_out.dtype != torch.float32 or w_out.device.type != "cpu":
+            return kernel
+        # numpy kernel (batch 1): gates (o, i, f, g), o/i/f columns halved (sigmoid(a) = (1 + tanh(a / 2)) / 2),
+        # h rows halved (z holds 2 h), a bias row before each layer's own h rows: z = [x, 1, h_0, 1, h_1, ...]
+        order = torch.cat([torch.arange(2 * hidden, 3 * hidden), torch.arange(0, 2 * hidden),
+                           torch.arange(3 * hidden, 4 * hidden)])
+        col = torch.ones(4 * hidden)
+        col[:3 * hidden] = 0.5
+
+        def gates(m: Tensor) -> np.ndarray:
+            return np.ascontiguousarray((m[..., order] * col).numpy(), dtype=np.float32)
+
+        w0 = gates(torch.cat([w_x[0][:6], torch.zeros(1, 4 * hidden), 0.5 * w_h[0]], 0))
+        w_np = [gates(torch.cat([0.5 * w_x[l], bias[l][None], 0.5 * w_h[l]], 0)) for l in range(1, layers)]
+        size = 6 + layers * (hidden + 1)
+        last = 7 + (layers - 1) * (hidden + 1)
+        head_np = torch.zeros(size, OUT_DIM + 6)
+        if w_skip.shape[0]:
+            head_np[:6, :OUT_DIM] = w_skip
+        head_np[6, :OUT_DIM] = b_out
+        head_np[last:last + hidden, :OUT_DIM] = 0.5 * w_out
+        head_np[:, OUT_DIM:] = head_np[:, :6] * fast["gain"]
+        head_np[:6, OUT_DIM:] += torch.eye(6)
+        kernel.update(np_w0=w0, np_w=w_np, np_head=np.ascontiguousarray(head_np.numpy()),
+                      np_w_feature=gates(w_x[0][6:]), np_b0=gates(bias[0]),
+                      np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32))
+        return kernel
+
     # --------------------------------------------------------------------------------------------- pieces
     def encode(self, cloud: Tensor) -> Tensor:
         """Shape feature (B, F) of clouds (B, P, 3) in frame C, metres, centred at their centroid."""
@@ -322,10 +508,16 @@ class DynamicsModel(nn.Module):
         else:
             x_obs = self._inputs(obs_vel, obs_angvel, fast)[:, :steps]
         if self.cfg.cell == "lstm":
-            w_x = fast["w_x"]
-            const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])  # the feature term is constant in time
-            return _lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
-                                 fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
+            if torch.is_grad_enabled():  # training / gradients: the differentiable kernel
+                w_x = fast["w_x"]
+                const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])  # the feature term is constant in time
+                return _lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
+                                     fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
+            kernel = self._kernel(fast)
+            if x0.shape[0] == 1 and "np_w0" in kernel and x0.device.type == "cpu" and x0.dtype == torch.float32:
+                raw, xs = self._numpy_kernel(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(), int(steps))
+                return torch.from_numpy(raw)[None], torch.from_numpy(xs)[None]
+            return self._fused_kernel(kernel, feature, x0, x_obs, int(steps))
         x, outs, xs = x0, [], [x0]
         for t in range(steps):  # the MLP baseline is not latency critical
             y = self.mlp(torch.cat([x, feature], -1))
@@ -335,6 +527,50 @@ class DynamicsModel(nn.Module):
             x = x_obs[:, t] if t < x_obs.shape[1] else x + y[:, :6] * fast["gain"]
             xs.append(x)
         return torch.stack(outs, 1), torch.stack(xs, 1)
+
+    @staticmethod
+    def _numpy_kernel(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarray,
+                      steps: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Batch 1: feature (1, F), x0 (6,), x_obs (K, 6) float32 -> raw (steps, 13), inputs used (steps + 1, 6)."""
+        w0 = kernel["np_w0"].copy()  # a private copy: the layer-0 bias row carries this object's feature term
+        w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
+        return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps)
+
+    def _fused_kernel(self, kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor,
+                      steps: int) -> Tuple[Tensor, Tensor]:
+        """_fused_lstm_rollout over blocks of KERNEL_ROWS rows (the block's gate buffers stay in the L2 cache)."""
+        const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])
+        rows = KERNEL_ROWS if x0.device.type == "cpu" else x0.shape[0]
+        parts = [_fused_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], const0[i:i + rows], kernel["w"], kernel["b"],
+                                     kernel["head"], kernel["b_head"], kernel["gain"], steps)
+                 for i in range(0, x0.shape[0], rows)]
+        if len(parts) == 1:
+            return parts[0]
+        return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+
+    def rollout_arrays(self, feature: np.ndarray, vel0: np.ndarray, angvel0: np.ndarray, steps: int,
+                       obs_vel: Optional[np.ndarray] = None, obs_angvel: Optional[np.ndarray] = None
+                       ) -> Tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """rollout_raw for numpy arrays, without autograd (the Predictor's entry point): raw outputs (B, steps, 13)
+        and normalised inputs used (B, steps + 1, 6) as float32 arrays, plus the scale vectors "in" (6,) and
+        "out" (13,) as float32. A batch of one on the CPU never touches torch (the latency path)."""
+        with torch.inference_mode():
+            fast = self._fast()
+            if self.cfg.cell == "lstm":
+                kernel = self._kernel(fast)
+                if len(feature) == 1 and "np_w0" in kernel and next(self.parameters()).device.type == "cpu":
+                    scale_in = kernel["np_in"]
+                    x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
+                    x_obs = (np.zeros((0, 6), np.float32) if obs_vel is None else
+                             (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps])
+                    raw, xs = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps))
+                    return raw[None], xs[None], {"in": scale_in, "out": kernel["np_out"]}
+            device = next(self.parameters()).device
+            tensor = lambda a: None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
+            raw, xs = self.rollout_raw(tensor(feature), tensor(vel0), tensor(angvel0), steps, tensor(obs_vel),
+                                       tensor(obs_angvel), fast)
+            scales = {"in": fast["in"].float().cpu().numpy(), "out": fast["out"].float().cpu().numpy()}
+            return raw.float().cpu().numpy(), xs.float().cpu().numpy(), scales
 
     def rollout(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                 obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None) -> dict[str, Tensor]:

@@ -1,0 +1,199 @@
+"""The inference roll-out kernels (issue 13) compute the same function as before.
+
+learn/model.py runs a roll-out without autograd in _fused_lstm_rollout (TorchScript, one product per layer, sigmoid
+only) or, at batch 1 on the CPU, _numpy_lstm_rollout; with autograd it still runs _lstm_rollout. The references
+here are the computations as they were before the change: `old_rollout_raw` below (the previous rollout_raw, which
+called _lstm_rollout for every roll-out), the teacher-forced nn.LSTM on the roll-out's own inputs, and the previous
+Predictor._run (`old_predictor_run`, torch roll-out + learn.frames.integrate_in_world).
+
+Tolerance: float32 rounding. Reordering the sums of a 60-step closed-loop roll-out moves outputs by up to ~1e-5 of
+their largest magnitude (the previous kernel itself differs by that much between a batch and its rows one at a
+time), so the bound is 2e-5 of each tensor's largest magnitude; one step (teacher forcing) agrees to 1e-5.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from physdyn_ros import geometry as geo
+from physdyn_ros.learn import model as model_module
+from physdyn_ros.learn.model import STAT_KEYS, DynamicsModel, ModelConfig
+
+FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
+STATS = dict(zip(STAT_KEYS, (0.5, 8.0, 0.2, 4.0, 0.03, 0.5, 0.15)))
+REL = 2e-5
+
+
+def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=None, obs_angvel=None):
+    """rollout_raw of the LSTM as it was before issue 13: _lstm_rollout for every roll-out."""
+    with torch.no_grad():
+        fast = m._build_fast()
+        x0 = m._inputs(vel0, angvel0, fast)
+        x_obs = x0.new_zeros(x0.shape[0], 0, 6) if obs_vel is None else m._inputs(obs_vel, obs_angvel, fast)[:, :steps]
+        w_x = fast["w_x"]
+        const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])
+        return model_module._lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
+                                          fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
+
+
+def close(new: torch.Tensor, ref: torch.Tensor, rel: float = REL) -> bool:
+    err = (new - ref).abs().max().item()
+    return err <= rel * max(ref.abs().max().item(), 1.0)
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    from physdyn_ros.predictor import Predictor
+
+    return Predictor.load()
+
+
+@pytest.fixture(scope="module")
+def pushes(shipped):
+    """Shape features and start velocities in frame C: the regression set's 20 test-split objects with their true
+    initial velocities, then random pushes of the same shapes (0.1-1.5 m/s, up to 6 rad/s spin)."""
+    from physdyn_ros.learn.frames import world_to_c
+
+    d = dict(np.load(FIXTURE))
+    codes = [shipped.encode(c) for c in d["cloud"]]
+    rng = np.random.default_rng(7)
+    n = 300
+    idx = np.arange(n) % len(codes)
+    v = d["lin_vel"][:, 0][idx]
+    w = d["ang_vel"][:, 0][idx]
+    speed, az = rng.uniform(0.1, 1.5, n), rng.uniform(-np.pi, np.pi, n)
+    rand = np.arange(n) >= len(codes)
+    v[rand] = np.stack([speed * np.cos(az), speed * np.sin(az), np.zeros(n)], 1)[rand]
+    w[rand] = rng.normal(size=(n, 3))[rand] * [0.5, 0.5, 3.0]
+    heading = np.array([codes[i].heading for i in idx])
+    f32 = lambda a: torch.from_numpy(np.asarray(a, np.float32))  # noqa: E731
+    feature = f32(np.stack([codes[i].feature for i in idx]))
+    obs_v = f32(world_to_c(d["lin_vel"][idx, 1:5], heading[:, None]))
+    obs_w = f32(world_to_c(d["ang_vel"][idx, 1:5], heading[:, None]))
+    return feature, f32(world_to_c(v, heading)), f32(world_to_c(w, heading)), obs_v, obs_w
+
+
+def test_kernels_are_compiled():
+    assert isinstance(model_module._lstm_rollout, torch.jit.ScriptFunction)
+    assert isinstance(model_module._fused_lstm_rollout, torch.jit.ScriptFunction)
+
+
+@pytest.mark.parametrize("batch", [1, 3, 300])  # 1: the numpy kernel; 300: two blocks of KERNEL_ROWS
+@pytest.mark.parametrize("observed", [False, True])
+def test_shipped_model_inference_kernels_equal_the_previous_kernel(shipped, pushes, batch, observed):
+    m = shipped._model
+    feature, v, w, obs_v, obs_w = (t[:batch] for t in pushes)
+    obs = (obs_v, obs_w) if observed else (None, None)
+    ref_raw, ref_xs = old_rollout_raw(m, feature, v, w, 60, *obs)
+    with torch.inference_mode():
+        raw, xs = m.rollout_raw(feature, v, w, 60, *obs)
+    assert raw.shape == ref_raw.shape == (batch, 60, 13) and xs.shape == ref_xs.shape == (batch, 61, 6)
+    assert close(raw, ref_raw) and close(xs, ref_xs)
+    if observed:
+        assert torch.equal(xs[:, 1:5], ref_xs[:, 1:5])  # observed inputs are copied, not computed
+    # one step at a time the new kernel is the teacher-forced network on its own inputs
+    scale = m._scale_vectors()["in"]
+    with torch.no_grad():
+        phys = xs[:, :-1] * scale
+        teacher = m.teacher_forced(feature, phys[..., :3], phys[..., 3:])
+    assert close(raw, teacher, 1e-5)
+    # the numpy entry point of the Predictor gives the same numbers
+    arr_raw, arr_xs, scales = m.rollout_arrays(feature.numpy(), v.numpy(), w.numpy(), 60,
+                                               *(None if o is None else o.numpy() for o in obs))
+    assert np.array_equal(arr_raw, raw.numpy()) and np.array_equal(arr_xs, xs.numpy())
+    assert np.array_equal(scales["out"], m._scale_vectors()["out"].numpy())
+
+
+@pytest.mark.parametrize("layers", [1, 2, 3])
+@pytest.mark.parametrize("skip", [False, True])
+@pytest.mark.parametrize("batch", [1, 5])
+def test_any_architecture_equals_the_previous_kernel(layers, skip, batch):
+    torch.manual_seed(layers)
+    cfg = ModelConfig(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), hidden_size=32, num_layers=layers,
+                      input_skip=skip)
+    m = DynamicsModel(cfg, STATS).eval()
+    if skip:
+        torch.nn.init.normal_(m.skip.weight, std=0.05)
+    feature, v, w = torch.randn(batch, 8), torch.randn(batch, 3) * 0.5, torch.randn(batch, 3) * 4
+    ref_raw, ref_xs = old_rollout_raw(m, feature, v, w, 40)
+    with torch.inference_mode():
+        raw, xs = m.rollout_raw(feature, v, w, 40)
+    assert close(raw, ref_raw) and close(xs, ref_xs)
+    with torch.enable_grad():  # autograd on: still the differentiable kernel, the same numbers as before
+        g_raw, _ = m.rollout_raw(feature, v, w, 40)
+    assert g_raw.requires_grad and torch.equal(g_raw.detach(), ref_raw)
+
+
+def test_kernel_weights_follow_parameter_updates():
+    torch.manual_seed(0)
+    m = DynamicsModel(ModelConfig(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), hidden_size=32), STATS).eval()
+    feature, v, w = torch.randn(2, 8), torch.randn(2, 3), torch.randn(2, 3)
+    with torch.inference_mode():
+        before = m.rollout_raw(feature, v, w, 20)[0]
+        one = m.rollout_raw(feature[:1], v[:1], w[:1], 20)[0]
+    with torch.no_grad():
+        m.lstm.weight_hh_l0.mul_(1.5)
+        m.head.bias.add_(0.1)
+    with torch.inference_mode():
+        after = m.rollout_raw(feature, v, w, 20)[0]
+        one_after = m.rollout_raw(feature[:1], v[:1], w[:1], 20)[0]
+    assert not torch.allclose(before, after)
+    assert close(after, old_rollout_raw(m, feature, v, w, 20)[0])
+    assert close(one_after, old_rollout_raw(m, feature[:1], v[:1], w[:1], 20)[0]) and not torch.allclose(one, one_after)
+
+
+# ------------------------------------------------------------------------------------------ the Predictor
+def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
+    """Predictor._run before issue 13 (without observed states): model.rollout in torch, then frames."""
+    from physdyn_ros.learn.frames import c_to_world, integrate_in_world, world_to_c
+
+    h = headings[:, None]
+    with torch.inference_mode(False), torch.no_grad():
+        fast = pred._model._build_fast()
+        f32 = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float32))  # noqa: E731
+        vel0, angvel0 = f32(world_to_c(v0, headings)), f32(world_to_c(w0, headings))
+        raw, xs = old_rollout_raw(pred._model, f32(feats), vel0, angvel0, horizon)
+        out = pred._model.denormalize(raw, fast)
+        x = xs * fast["in"]
+        flat = torch.cat([out["d_pos"], out["d_rot"], x[:, 1:, :3], x[:, 1:, 3:], out["topple_logit"][..., None]],
+                         -1).double().numpy()
+    positions, orientations = integrate_in_world(headings, p0, q0, flat[..., 0:3], flat[..., 3:6])
+    lin = np.concatenate([v0[:, None], c_to_world(flat[..., 6:9], h)], axis=1)
+    ang = np.concatenate([w0[:, None], c_to_world(flat[..., 9:12], h)], axis=1)
+    prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
+    return positions, orientations, lin, ang, prob
+
+
+def test_predictor_equals_the_previous_predictor(shipped):
+    d = dict(np.load(FIXTURE))
+    rng = np.random.default_rng(11)
+    code = shipped.encode(d["cloud"][3])
+    v, w = rng.normal(size=(6, 3)) * [0.7, 0.7, 0.0], rng.normal(size=(6, 3)) * [0.5, 0.5, 3.0]
+    q0 = geo.quat_normalize(rng.normal(size=(6, 4)))
+    p0 = rng.normal(size=(6, 3))
+    batch = shipped.rollout_batch(code, v, w, 60, positions=p0, orientations=q0)
+    singles = [shipped.rollout(code, v[i], w[i], 60, position=p0[i], orientation=q0[i]) for i in range(6)]
+    ref = old_predictor_run(shipped, np.repeat(code.feature[None], 6, 0), np.full(6, code.heading), v, w, p0, q0, 60)
+    for name, r in zip(("positions", "orientations", "lin_vels", "ang_vels", "topple_prob"), ref):
+        for got in (getattr(batch, name), np.stack([getattr(t, name) for t in singles])):
+            if name == "orientations":
+                assert geo.quat_angle_between(got, r).max() < 1e-5 and np.all(got[..., 3] >= 0)
+            else:
+                assert np.abs(got - r).max() <= REL * max(np.abs(r).max(), 1.0), name
+
+
+def test_compose_rotations_equals_integrate_in_world():
+    from physdyn_ros.learn.frames import integrate_in_world
+    from physdyn_ros.predictor import compose_rotations
+
+    rng = np.random.default_rng(5)
+    d_rot = rng.normal(size=(4, 61, 3)) * np.array([0.01, 0.3, 1.5, 3.0])[:, None, None]
+    d_rot[0, :5] = 0.0  # exact identities
+    q0 = geo.quat_normalize(rng.normal(size=(4, 4)))
+    _, ref = integrate_in_world(np.zeros(4), np.zeros((4, 3)), q0, np.zeros_like(d_rot), d_rot)
+    got = compose_rotations(q0, d_rot)
+    assert got.shape == (4, 62, 4) and np.allclose(np.linalg.norm(got, axis=-1), 1.0)
+    assert np.abs(got - ref).max() < 1e-12  # both have w >= 0
