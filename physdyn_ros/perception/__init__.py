@@ -1,0 +1,16 @@
+"""Perception core without ROS: a table-top point cloud -> the objects on the table, their tracked ids.
+
+- `frames`: sensor-to-table rigid transforms (static-transform parameters, camera optical frames);
+- `scene`: finite points, subsampling, table-plane RANSAC, outlier removal, clustering (`segment`);
+- `tracking`: ids stable from cloud to cloud (`Tracker`);
+- `synthetic`: depth-camera clouds of a table with objects, for tests and benches.
+
+The perception node (physdyn_ros/nodes/perception_node.py) is a thin ROS adapter over this package; nothing here
+imports rclpy.
+"""
+from .frames import RigidTransform, camera_optical_pose, parse_transform
+from .scene import Preprocess, Scene, SceneConfig, SceneObject, TablePlane, outline_xy, preprocess, segment
+from .tracking import Tracker
+
+__all__ = ["RigidTransform", "camera_optical_pose", "parse_transform", "Preprocess", "Scene", "SceneConfig",
+           "SceneObject", "TablePlane", "outline_xy", "preprocess", "segment", "Tracker"]
