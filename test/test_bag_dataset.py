@@ -21,12 +21,18 @@ from test_bag_support import Recorder, wait_until
 #: (box shape seed, yaw, impulse direction * speed); the impulse is mass * this, at the centre of mass.
 PUSHES = [(0, 0.0, (0.9, 0.0, 0.0)), (1, 0.3, (0.0, 1.2, 0.0)), (2, 0.6, (-0.9, 0.6, 0.0))]
 TOPICS = ["object_state", "cloud", "initial_twist", "odom", "object_pose"]
+#: States at rest recorded after each spawn and each push (bag2dataset's onset detection needs a few).
+REST_STATES = 10
 
 
 @pytest.fixture(scope="module")
 def session(rclpy_init, tmp_path_factory):
     from geometry_msgs.msg import Vector3
+    from sensor_msgs.msg import PointCloud2
 
+    from physdyn_ros.msg import ObjectState
+    from physdyn_ros.nodes.sim_node import CLOUD_QOS, STATE_QOS
+    from physdyn_ros.ros.convert import time_to_ns
     from physdyn_ros.srv import PushObject, SpawnObject
 
     bag = tmp_path_factory.mktemp("session") / "bag"
@@ -35,6 +41,19 @@ def session(rclpy_init, tmp_path_factory):
                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     rec = None
     node = rclpy_init.create_node("bag_session_driver")
+    # The driver watches what the recorder records, and waits for events instead of sleeping.
+    states: list = []
+    clouds: list = []
+    node.create_subscription(ObjectState, "object_state", states.append, STATE_QOS)
+    node.create_subscription(PointCloud2, "cloud", clouds.append, CLOUD_QOS)
+
+    def spin_until(predicate, what: str, timeout: float = 30.0):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            assert time.monotonic() < deadline, f"timed out waiting for {what}"
+            rclpy_init.spin_once(node, timeout_sec=0.05)
+        return predicate()
+
     try:
         rec = Recorder(bag, *TOPICS, "--split-duration", "2")
         push, spawn = node.create_client(PushObject, "push"), node.create_client(SpawnObject, "spawn_object")
@@ -54,10 +73,20 @@ def session(rclpy_init, tmp_path_factory):
         for seed, yaw, v in PUSHES:
             masses.append(call(spawn, SpawnObject.Request(category="box", shape_seed=seed, yaw=yaw,
                                                           friction=0.5)).mass)
-            time.sleep(0.5)  # the recorder sees the new object's cloud (5 Hz) before the push
+            # the new object's first state, then a cloud of it (5 Hz): the recorder gets them as the driver does
+            n = len(states)
+            t_spawn = time_to_ns(spin_until(lambda: states[n:] and states[n], "the new object's state").header.stamp)
+            spin_until(lambda: any(time_to_ns(c.header.stamp) >= t_spawn for c in clouds), "its cloud")
+            # and it rests for a few frames before the push: the respawn's jump is not taken for motion
+            spin_until(lambda: len(states) - n >= REST_STATES, "states of the object at rest")
             m = masses[-1]
+            n = len(states)
             call(push, PushObject.Request(impulse=Vector3(x=m * v[0], y=m * v[1], z=m * v[2])))
-            time.sleep(0.8)  # real_time_factor 0: the push is simulated within milliseconds
+            # real_time_factor 0: the push is simulated within milliseconds; then the sim publishes the object at
+            # rest (15 Hz). Enough rest frames must be recorded to tell this push from the next (bag2dataset).
+            spin_until(lambda: sum(s.twist.linear.x == s.twist.linear.y == s.twist.angular.z == 0.0
+                                   and s.twist.linear.z == s.twist.angular.x == s.twist.angular.y == 0.0
+                                   for s in states[n + 1:]) >= REST_STATES, "the object at rest after the push")
         rc, out, err = rec.stop(signal.SIGINT)
         assert rc == 0, err
     finally:
