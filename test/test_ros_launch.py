@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import ast
 import json
+import math
 import os
 import signal
 import subprocess
@@ -204,7 +205,9 @@ def test_demo_short_run(tmp_path, tiny_model):
     assert len(pushes) == 2 and pushes[1]["category"] == "pybullet_data"  # an object the model never saw
     for p in pushes:
         assert len(p["true_xy"]) == 31 and len(p["predicted_xy"]) == 31
-        assert p["position_error_cm"] >= 0 and p["rotation_error_deg"] >= 0
+        # the reported error is the distance of the reported poses
+        assert p["position_error_cm"] == pytest.approx(100 * math.dist(p["predicted_final"], p["true_final"]))
+        assert 0 <= p["rotation_error_deg"] <= 180
         assert p["verdict"] in ("GOOD", "FAIR", "POOR") and len(p["outline"]) > 50
         # a toppled push is scored at its last upright frame, an upright one at the end
         assert p["scored_step"] == (p["true_topple_step"] - 1 if p["toppled"] else 30)
