@@ -370,3 +370,27 @@ def test_diagnostics_report_the_counters(rclpy_init, predictor):
     values = {kv.key: kv.value for kv in status.values}
     assert status.level == DiagnosticStatus.WARN and "no shape feature received for object 'nobody'" in status.message
     assert values["refusals"] == "1" and values["predictions"] == "1" and float(values["latency_p50_ms"]) > 0
+
+
+def test_live_parameters_are_validated(rclpy_init, predictor):
+    """Issue 15.3: a bad value set at run time is refused with its reason (over DDS, as `ros2 param set` does);
+    a bad value at start stops the node with the parameter named."""
+    from rcl_interfaces.srv import SetParameters
+
+    node = predictor()
+    c = Client(rclpy_init)
+    setp = c.node.create_client(SetParameters, "/predictor/set_parameters")
+    with Spinner(node, c.node):
+        res = call(setp, SetParameters.Request(parameters=[
+            Parameter("initial_pose_source", value="tracker").to_parameter_msg()]))
+        assert not res.results[0].successful
+        assert "initial_pose_source must be one of object_state, shape_feature" in res.results[0].reason
+        res = call(setp, SetParameters.Request(parameters=[Parameter("horizon", value=0).to_parameter_msg()]))
+        assert not res.results[0].successful  # below the declared range
+        res = call(setp, SetParameters.Request(parameters=[
+            Parameter("initial_pose_source", value="shape_feature").to_parameter_msg()]))
+        assert res.results[0].successful
+    assert node.get_parameter("initial_pose_source").value == "shape_feature"
+    assert node.get_parameter("horizon").value == 60
+    with pytest.raises(ValueError, match="initial_pose_source must be one of object_state, shape_feature"):
+        predictor(initial_pose_source="tracker")

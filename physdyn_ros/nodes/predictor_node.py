@@ -55,6 +55,8 @@ FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: States may arrive in bursts (the sim at real_time_factor 0): a deep queue loses none.
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE)
+#: Where the pose at the push comes from (parameter initial_pose_source).
+POSE_SOURCES = ("object_state", "shape_feature")
 #: A stamp this close to another counts as the same instant (float round-trips of stamps).
 SAME_INSTANT_NS = 1_000_000
 NS = 1e-9
@@ -115,7 +117,7 @@ class PredictorNode(Node):
         declare(self, "initial_pose_source", "object_state", "'object_state': pose at the push = the "
                 "object_state stamped at the twist's stamp (waits up to state_wait for it); 'shape_feature': "
                 "the feature's centroid and canonical heading (no tracker needed; predicted poses are then "
-                "those of the cloud's canonical frame)")
+                "those of the cloud's canonical frame)", choices=POSE_SOURCES)
         declare(self, "max_feature_age", 5.0, "a shape feature older than this (s, by stamps) than the twist "
                 "is stale: no prediction; 0 = no limit", low=0.0)
         declare(self, "max_state_age", 0.5, "the object_state used as initial pose must be within this many "
@@ -298,8 +300,6 @@ class PredictorNode(Node):
         if source == "shape_feature":
             h = float(feat.heading)
             return xyz_to_numpy(feat.centroid), np.array([0.0, 0.0, np.sin(h / 2), np.cos(h / 2)])
-        if source != "object_state":
-            raise RequestError(f"initial_pose_source must be 'object_state' or 'shape_feature', not '{source}'")
         best, _ = self.state_at(object_id, t_ns)
         if best is None:
             raise RequestError(f"no object_state of '{object_id}' at or before the push (initial_pose_source "
