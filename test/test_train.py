@@ -180,6 +180,14 @@ def test_evaluate_cli_writes_reports(overfit_run, tmp_path, capsys):
     assert steps.returncode == 0, steps.stderr[-2000:]
     rep4 = json.loads((tmp_path / "e4" / "metrics.json").read_text())
     assert rep4["steps_in"] == 4 and set(rep4["results"]["overall"]) == {"model"}
+    # partial depth-camera views, against the object that stays still (issue 11's tables)
+    part = _cli(capsys, "evaluate", "--checkpoint", str(overfit_run / "model_best.pt"), "--data", str(tiny_dataset()),
+                "--horizon", "40", "--partial", "1", "--baselines", "still", "--out", str(tmp_path / "ep"))
+    assert part.returncode == 0, part.stderr[-2000:]
+    rep = json.loads((tmp_path / "ep" / "metrics.json").read_text())
+    assert rep["partial_views"] == 1.0 and set(rep["results"]["overall"]) == {"model", "still"}
+    assert rep["results"]["overall"]["still"]["final_pos_cm"]["median"] > 0  # the pushed objects do move
+    assert rep["results"]["overall"]["model"] != overall["model"]  # other clouds, other predictions
 
 
 def test_bad_data_and_config_give_clear_errors(tmp_path):

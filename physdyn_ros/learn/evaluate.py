@@ -65,15 +65,17 @@ def _batches(n: int, size: int):
 
 @torch.inference_mode()
 def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, horizon: int, steps_in: int = 1,
-                   batch_size: int = 256, device: str | torch.device = "cpu") -> Trajectories:
-    """Closed-loop roll-outs from frame 0; with steps_in = k, frames 1..k-1 are observed (fed and kept)."""
+                   batch_size: int = 256, device: str | torch.device = "cpu", partial: float = 0.0,
+                   noise: float = 0.0) -> Trajectories:
+    """Closed-loop roll-outs from frame 0; with steps_in = k, frames 1..k-1 are observed (fed and kept).
+    partial / noise: that fraction of the clouds seen as one depth camera's view (fixed views, learn/views.py)."""
     if steps_in < 1 or steps_in > horizon:
         raise ValueError(f"steps_in must be in 1..{horizon}, got {steps_in}")
     model.eval()
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("pos", "quat", "lin_vel", "ang_vel", "topple_prob")}
     for sl in _batches(len(index), batch_size):
         idx = index[sl]
-        seq = sequences(sims, horizon, model.cfg.num_points, idx)
+        seq = sequences(sims, horizon, model.cfg.num_points, idx, partial, noise, view_seed=sl.start)
         k = steps_in - 1
         obs_v = seq["vel"][:, 1:1 + k].to(device) if k else None
         obs_w = seq["angvel"][:, 1:1 + k].to(device) if k else None
@@ -99,12 +101,13 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
 
 @torch.inference_mode()
 def model_single_step(model: DynamicsModel, sims: SimArrays, index: np.ndarray, horizon: int,
-                      batch_size: int = 256, device: str | torch.device = "cpu") -> dict[str, np.ndarray]:
+                      batch_size: int = 256, device: str | torch.device = "cpu", partial: float = 0.0,
+                      noise: float = 0.0) -> dict[str, np.ndarray]:
     """Teacher-forced per-step change errors (B, H) in paper units (see change_errors)."""
     model.eval()
     parts: dict[str, list[np.ndarray]] = {}
     for sl in _batches(len(index), batch_size):
-        seq = sequences(sims, horizon, model.cfg.num_points, index[sl])
+        seq = sequences(sims, horizon, model.cfg.num_points, index[sl], partial, noise, view_seed=sl.start)
         feature = model.encode(seq["cloud"].to(device))
         raw = model.teacher_forced(feature, seq["vel"][:, :-1].to(device), seq["angvel"][:, :-1].to(device))
         pred = {k: v.double().cpu().numpy() for k, v in model.denormalize(raw).items()}
@@ -285,7 +288,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="observed frames fed before the roll-out runs free (paper: 1, 4, 6)")
     parser.add_argument("--mlp-checkpoint", default=None, help="the MLP baseline's checkpoint")
     parser.add_argument("--baselines", nargs="*", default=["analytic", "pybullet"],
-                        choices=["analytic", "pybullet"], help="non-learned baselines (default: both)")
+                        choices=["analytic", "pybullet", "still"], help="non-learned baselines (default: analytic "
+                        "and pybullet; still = the object stays where it is)")
+    parser.add_argument("--partial", type=float, default=0.0, help="fraction of the clouds the model sees as one "
+                        "depth camera's view (fixed random viewpoints above the table; default 0 = whole surface)")
+    parser.add_argument("--view-noise", type=float, default=0.002, help="m of Gaussian noise on partial views")
     parser.add_argument("--friction-error", type=float, default=0.2,
                         help="relative friction error of the pybullet baseline (default 0.2 = +-20%%)")
     parser.add_argument("--max-sequences", type=int, default=None, help="evaluate at most this many sequences")
@@ -300,6 +307,8 @@ def run(args: argparse.Namespace) -> int:
     from .checkpoint import load_model
     from .windows import load_sims
 
+    if not 0.0 <= args.partial <= 1.0 or args.view_noise < 0:
+        raise ValueError(f"--partial must be in [0, 1] and --view-noise >= 0, got {args.partial}, {args.view_noise}")
     if args.threads:
         torch.set_num_threads(args.threads)
     ckpt_path = Path(args.checkpoint) if args.checkpoint else DEFAULT_MODEL
@@ -313,9 +322,14 @@ def run(args: argparse.Namespace) -> int:
         index = np.linspace(0, len(sims) - 1, args.max_sequences).astype(np.int64)
     t0 = time.perf_counter()
     gt = ground_truth(sims, index, args.horizon)
+    view = (args.partial, args.view_noise)
     methods: dict[str, Trajectories] = {"model": model_rollouts(model, sims, index, args.horizon, args.steps_in,
-                                                               args.batch_size, args.device)}
-    singles = {"model": model_single_step(model, sims, index, args.horizon, args.batch_size, args.device)}
+                                                               args.batch_size, args.device, *view)}
+    singles = {"model": model_single_step(model, sims, index, args.horizon, args.batch_size, args.device, *view)}
+    if "still" in args.baselines:  # the object stays where it is: the floor any predictor must beat
+        methods["still"] = Trajectories(np.repeat(gt.pos[:, :1], args.horizon + 1, 1),
+                                        np.repeat(gt.quat[:, :1], args.horizon + 1, 1),
+                                        np.zeros_like(gt.lin_vel), np.zeros_like(gt.ang_vel))
     if args.mlp_checkpoint:
         mlp, _ = load_model(args.mlp_checkpoint, args.device)
         mlp.to(args.device)
@@ -338,6 +352,7 @@ def run(args: argparse.Namespace) -> int:
                     r["pos"], r["quat"], r["lin_vel"], r["ang_vel"], r["toppled"].astype(np.float64))
     results = evaluate_all(methods, singles, gt, sims, index, args.horizon)
     report = {"checkpoint": str(ckpt_path), "model_id": ckpt["model_id"], "data": str(args.data),
+              "partial_views": args.partial, "view_noise": args.view_noise,
               "split": args.split, "categories": args.categories, "horizon": args.horizon, "dt": sims.dt,
               "steps_in": args.steps_in, "sequences": int(len(index)), "seconds": time.perf_counter() - t0,
               "results": results}
