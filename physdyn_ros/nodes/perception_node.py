@@ -1,106 +1,67 @@
-"""Perception: an object's point cloud -> its learned shape feature (ShapeFeature), once per cloud.
+"""Perception: a table-top point cloud -> one learned shape feature (ShapeFeature) per object on the table.
 
-The cloud must already be in the table frame (this node does not use tf): clouds in any other frame are dropped
-with a warning. Preprocessing: keep finite points, random subsample to max_points (bounds time and memory for
-huge clouds), optional crop box, optional removal of the table plane (RANSAC, only a near-horizontal plane near
-z = 0), optional voxel grid, statistical outlier removal. Then Predictor.encode.
+A thin ROS adapter over physdyn_ros.perception (the ROS-free core):
+1. the cloud's frame: the table frame as is; `sensor_frame` with the static `sensor_transform` parameter; any
+   other frame through tf2 when tf2_ros can be imported (a full ROS 2 install) and `use_tf` is on; otherwise the
+   cloud is refused with the reason;
+2. x, y, z read from the message (a random subset of `max_points` for larger clouds), then
+   perception.segment: table plane, clusters, per-object outlier removal (see physdyn_ros/perception/scene.py);
+3. ids: `single_object` (default) publishes one feature, of the object tracked under `object_id` (the largest
+   when it is first seen or lost), as this node always did; otherwise one feature per object with the ids of
+   perception.Tracker (`<id_prefix><n>`, stable while objects move);
+4. Predictor.encode per object; features stamped with the cloud's stamp in the table frame; outlines on
+   `object_markers`.
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
-from dataclasses import dataclass
+import zlib
 
 import numpy as np
+from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
 
 from ..conventions import TABLE_FRAME
-from ..ros.throttle import ReasonThrottle
 from ..msg import ShapeFeature
+from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
+from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
 from ..ros.cloud import cloud_size, cloud_to_xyz
-from ..ros.convert import point, vector3
+from ..ros.convert import point, time_to_ns, vector3
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
+from ..ros.throttle import ReasonThrottle
 
-#: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, and a queue of huge clouds
-#: would hold hundreds of MB.
+#: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, a slow callback never builds
+#: a backlog, and a queue of huge clouds would hold hundreds of MB.
 CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                        durability=DurabilityPolicy.VOLATILE)
-#: Latched: a node that starts later still receives the last feature.
-FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+#: Latched: a node that starts later still receives the last features. Deep enough for one message per object of
+#: a cloud (a depth of 1 let a reliable writer replace the first objects' features before they were delivered).
+FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Outline colours, picked by the object id (the same id keeps its colour).
+PALETTE = [(0.90, 0.10, 0.10), (0.10, 0.60, 0.90), (0.20, 0.75, 0.20), (0.95, 0.60, 0.05), (0.60, 0.25, 0.85),
+           (0.05, 0.75, 0.70), (0.85, 0.30, 0.60), (0.55, 0.55, 0.10)]
 
 
-@dataclass
-class Preprocess:
-    """Cloud cleaning settings (the node's parameters of the same names)."""
-
-    max_points: int = 100_000
-    crop: bool = False
-    crop_min: tuple[float, float, float] = (-1.0, -1.0, -0.05)
-    crop_max: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    remove_plane: bool = False
-    plane_distance: float = 0.005
-    plane_max_tilt: float = 10.0  # degrees
-    plane_max_offset: float = 0.02  # m
-    voxel_size: float = 0.0
-    outlier_neighbors: int = 20
-    outlier_std_ratio: float = 2.0
-    min_points: int = 32
-
-
-def _o3d(points: np.ndarray):
-    import open3d as o3d
-
-    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
-
-
-def remove_table_plane(points: np.ndarray, cfg: Preprocess, seed: int = 0) -> np.ndarray:
-    """Drop the inliers of the dominant plane if it is the table: normal within plane_max_tilt of z and height
-    within plane_max_offset of z = 0. Any other plane (an object's face) is left alone."""
-    if len(points) < 3:
-        return points
-    import open3d as o3d
-
-    o3d.utility.random.seed(seed)  # RANSAC draws from open3d's global generator: reproducible results
-    (a, b, c, d), inliers = _o3d(points).segment_plane(cfg.plane_distance, 3, 200)
-    norm = math.sqrt(a * a + b * b + c * c)
-    tilt = math.degrees(math.acos(min(1.0, abs(c) / norm)))
-    height = -d / c if abs(c) > 1e-9 else math.inf
-    if tilt > cfg.plane_max_tilt or abs(height) > cfg.plane_max_offset:
-        return points
-    keep = np.ones(len(points), dtype=bool)
-    keep[np.asarray(inliers, dtype=np.int64)] = False
-    return points[keep & (points[:, 2] > height)]  # and anything below the table
-
-
-def preprocess(points: np.ndarray, cfg: Preprocess) -> np.ndarray:
-    """Finite (N, 3) points of one object (table frame) -> the cleaned cloud. ValueError if too few remain."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    if len(pts) > cfg.max_points:  # callers normally subsample while reading (cloud_to_xyz)
-        pts = pts[np.random.default_rng(0).choice(len(pts), cfg.max_points, replace=False)]
-    if cfg.crop:
-        lo, hi = np.asarray(cfg.crop_min), np.asarray(cfg.crop_max)
-        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
-    if cfg.remove_plane:
-        pts = remove_table_plane(pts, cfg)
-    if cfg.voxel_size > 0 and len(pts):
-        pts = np.asarray(_o3d(pts).voxel_down_sample(cfg.voxel_size).points)
-    if cfg.outlier_neighbors > 0 and len(pts) > cfg.outlier_neighbors:
-        _, idx = _o3d(pts).remove_statistical_outlier(cfg.outlier_neighbors, cfg.outlier_std_ratio)
-        pts = pts[np.asarray(idx, dtype=np.int64)]
-    if len(pts) < cfg.min_points:
-        raise ValueError(f"only {len(pts)} points left after preprocessing (min_points {cfg.min_points})")
-    return pts.astype(np.float32)
+def tf2_available() -> bool:
+    try:
+        import tf2_ros  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 class PerceptionNode(Node):
-    """Subscribes `cloud`, publishes `shape_feature`."""
+    """Subscribes `cloud`; publishes `shape_feature` (one per object) and `object_markers`."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("perception", **kwargs)
@@ -109,79 +70,221 @@ class PerceptionNode(Node):
         device = declare(self, "device", "cpu", "torch device for the encoder", read_only=True)
         threads = declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription)",
                           read_only=True, low=1, high=256)
-        self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "clouds must be in this frame (no tf "
-                                        "lookup); the feature is published in it", read_only=True)
-        declare(self, "object_id", "object", "object_id written into each ShapeFeature")
-        d = Preprocess()
+        self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of the table (z up, plane "
+                                        "z = 0); clouds are transformed into it and features published in it",
+                                        read_only=True)
+        declare(self, "sensor_frame", "", "a cloud frame whose pose in table_frame is the static sensor_transform "
+                "(used instead of tf for that frame); empty = none")
+        declare(self, "sensor_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "pose of sensor_frame in "
+                "table_frame: x, y, z (m), qx, qy, qz, qw (as static_transform_publisher takes it)")
+        use_tf = declare(self, "use_tf", True, "look up other frames with tf2 when tf2_ros can be imported",
+                         read_only=True)
+        declare(self, "tf_timeout", 0.05, "s to wait for a tf transform at the cloud's stamp", low=0.0, high=5.0)
+        declare(self, "single_object", True, "true: one feature per cloud, for the object tracked as object_id "
+                "(the largest when first seen or lost); false: one feature per object, ids <id_prefix><n>")
+        declare(self, "object_id", "object", "object_id of the feature in single_object mode")
+        declare(self, "id_prefix", "object_", "ids of tracked objects (single_object false): <id_prefix><n>")
+        declare(self, "track_gate", 0.1, "m, largest distance between an object's predicted and measured centroid "
+                "for it to keep its id", low=0.001, high=10.0)
+        declare(self, "track_timeout", 2.0, "s (cloud stamps) after which an unseen object's id is retired",
+                low=0.0, high=3600.0)
+        d = SceneConfig()
         declare(self, "max_points", d.max_points, "clouds with more points are randomly subsampled to this many "
                 "while being read (bounds time and memory)", low=16)
+        declare(self, "sample_points", d.sample_points, "points above the table (random subset) that are "
+                "clustered into objects", low=16, high=1_000_000)
+        declare(self, "object_points", d.object_points, "at most this many points per object (random subset) "
+                "for outlier removal and encoding", low=16, high=1_000_000)
         declare(self, "crop", d.crop, "keep only points inside the box crop_min..crop_max (table frame)")
         declare(self, "crop_min", list(d.crop_min), "x, y, z lower corner of the crop box, m")
         declare(self, "crop_max", list(d.crop_max), "x, y, z upper corner of the crop box, m")
-        declare(self, "remove_plane", d.remove_plane, "remove the table plane found by RANSAC (a plane within "
-                "plane_max_tilt of horizontal and plane_max_offset of z = 0) and the points below it")
+        declare(self, "remove_plane", d.remove_plane, "remove the table plane (RANSAC: a plane within "
+                "plane_max_tilt of horizontal and plane_max_offset of z = 0, reaching beyond the objects) and "
+                "the points below it")
         declare(self, "plane_distance", d.plane_distance, "RANSAC inlier distance, m", low=1e-5, high=1.0)
         declare(self, "plane_max_tilt", d.plane_max_tilt, "largest tilt of the table plane, degrees", low=0.0,
                 high=90.0)
         declare(self, "plane_max_offset", d.plane_max_offset, "largest |height| of the table plane, m", low=0.0)
         declare(self, "voxel_size", d.voxel_size, "voxel grid downsampling size, m; 0 = off", low=0.0, high=1.0)
-        declare(self, "outlier_neighbors", d.outlier_neighbors, "statistical outlier removal: neighbours per "
-                "point; 0 = off", low=0, high=1000)
+        declare(self, "cluster_tolerance", d.cluster_tolerance, "m, cell side of the clustering: surfaces closer "
+                "than this are one object; objects closer than about 3.5 times this may merge", low=0.001,
+                high=1.0)
+        declare(self, "cluster_max_size", d.cluster_max_size, "m, clusters wider than this along an axis are not "
+                "objects", low=0.01, high=100.0)
+        declare(self, "max_objects", d.max_objects, "at most this many objects (the largest) per cloud", low=1,
+                high=1000)
+        declare(self, "outlier_neighbors", d.outlier_neighbors, "statistical outlier removal per object: "
+                "neighbours per point; 0 = off", low=0, high=1000)
         declare(self, "outlier_std_ratio", d.outlier_std_ratio, "statistical outlier removal: std-dev ratio",
                 low=0.1, high=100.0)
-        declare(self, "min_points", d.min_points, "fewer points after preprocessing: no feature (warning)",
-                low=1)
+        declare(self, "min_points", d.min_points, "clusters with fewer points are not objects; fewer points in "
+                "all: no feature (warning)", low=1)
+        declare(self, "publish_markers", True, "publish each object's outline and id on object_markers")
+        parse_transform(self.get_parameter("sensor_transform").value)  # a bad one stops the node at start
         self.predictor = load_predictor(self, model_path, device, threads)
         self._rng = np.random.default_rng(0)
-        self.processed = 0
+        self.tracker = Tracker()
+        self.processed = 0  # clouds that gave at least one feature
+        self.published = 0  # features
         self.last_error = ""
+        self.last_ms = 0.0  # processing time of the last cloud
         self._warn = ReasonThrottle(self.get_logger().warning, 2.0)
-        self.pub = self.create_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
-        self.create_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
-        self.get_logger().info(f"ready: encoding clouds in frame '{self.table_frame}' with model "
-                               f"{self.predictor.model_id}")
+        self._note = ReasonThrottle(self.get_logger().info, 10.0)
+        self._tf_buffer = self._tf_listener = None
+        if use_tf and tf2_available():
+            import tf2_ros
 
-    def config(self) -> Preprocess:
-        """The preprocessing settings, read from the parameters now (they may change at run time)."""
-        p = {name: self.get_parameter(name).value for name in Preprocess.__dataclass_fields__}
+            self._tf_buffer = tf2_ros.Buffer()
+            # Its own node and thread: a lookup may wait (tf_timeout) inside this node's cloud callback.
+            self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, None, spin_thread=True)
+        self.pub = self.create_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "object_markers", MARKER_QOS)
+        self.create_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
+        frames = "tf2" if self._tf_buffer is not None else ("no tf2 (tf2_ros not importable)" if use_tf else
+                                                            "tf off (use_tf false)")
+        sensor = self.get_parameter("sensor_frame").value
+        self.get_logger().info(
+            f"ready: clouds in '{self.table_frame}'" + (f", '{sensor}' (sensor_transform)" if sensor else "")
+            + f", other frames: {frames}; "
+            + ("single object" if self.get_parameter("single_object").value else "several objects")
+            + f"; model {self.predictor.model_id}")
+
+    # ------------------------------------------------------------------------------------------------ settings
+    def config(self) -> SceneConfig:
+        """The segmentation settings, read from the parameters now (they may change at run time)."""
+        p = {name: self.get_parameter(name).value for name in SceneConfig.__dataclass_fields__}
         p["crop_min"], p["crop_max"] = tuple(p["crop_min"]), tuple(p["crop_max"])
-        return Preprocess(**p)
+        return SceneConfig(**p)
+
+    def transform_to_table(self, header: Header) -> RigidTransform | None:
+        """The transform of the cloud's frame into the table frame (None: it is the table frame); ValueError
+        with the reason when it is not known."""
+        frame = header.frame_id
+        if frame == self.table_frame:
+            return None
+        sensor = self.get_parameter("sensor_frame").value
+        if frame and frame == sensor:
+            return parse_transform(self.get_parameter("sensor_transform").value)
+        hint = (f"set sensor_frame:={frame or '<frame>'} and sensor_transform:=[x, y, z, qx, qy, qz, qw] (the pose "
+                f"of the cloud's frame in '{self.table_frame}'), or publish clouds in '{self.table_frame}'")
+        if not frame:
+            raise ValueError(f"frame_id is empty: the cloud's frame is unknown ({hint})")
+        if self._tf_buffer is None:
+            why = ("tf2_ros cannot be imported here" if self.get_parameter("use_tf").value else "use_tf is false")
+            raise ValueError(f"frame_id '{frame}' is not the table frame '{self.table_frame}' and no transform is "
+                             f"known: {why}, and sensor_frame is '{sensor}' ({hint})")
+        import tf2_ros
+        from rclpy.duration import Duration
+        from rclpy.time import Time
+
+        try:
+            tf = self._tf_buffer.lookup_transform(self.table_frame, frame, Time.from_msg(header.stamp),
+                                                  Duration(seconds=float(self.get_parameter("tf_timeout").value)))
+        except tf2_ros.TransformException as exc:
+            raise ValueError(f"frame_id '{frame}' is not the table frame '{self.table_frame}' and tf has no "
+                             f"transform at the cloud's stamp: {exc}") from None
+        t, r = tf.transform.translation, tf.transform.rotation
+        return parse_transform([t.x, t.y, t.z, r.x, r.y, r.z, r.w], f"tf transform {frame} -> {self.table_frame}")
+
+    # -------------------------------------------------------------------------------------------------- work
+    def process(self, msg: PointCloud2) -> tuple[list[ShapeFeature], MarkerArray, str]:
+        """Cloud -> (features, markers, reason); reason says why there is no feature (then features is empty).
+        ValueError for a cloud that cannot be read at all (layout, unknown frame)."""
+        to_table = self.transform_to_table(msg.header)
+        cfg = self.config()
+        pts = cloud_to_xyz(msg, skip_nans=True, max_points=cfg.max_points, rng=self._rng)
+        header = Header(stamp=msg.header.stamp, frame_id=self.table_frame)
+        if len(pts) == 0:
+            reason = "the cloud has no finite points" if cloud_size(msg) else "the cloud is empty"
+            return [], self.markers(header, []), reason
+        scene = segment(pts, cfg, to_table, self._rng)
+        if scene.dropped:
+            self.get_logger().debug(f"not objects: {'; '.join(scene.dropped)}")
+        if not scene.objects:
+            return [], self.markers(header, []), scene.reason
+        centroids = np.array([o.centroid for o in scene.objects])
+        stamp_ns = time_to_ns(msg.header.stamp) or self.get_clock().now().nanoseconds
+        t = stamp_ns * 1e-9
+        p = self.get_parameter
+        self.tracker.configure(p("id_prefix").value, p("track_gate").value, p("track_timeout").value)
+        if p("single_object").value:
+            chosen = self.tracker.follow(centroids, t, p("object_id").value)
+            labelled = [(p("object_id").value, scene.objects[chosen])]
+            if len(scene.objects) > 1:
+                self._note(f"{len(scene.objects)} objects in the cloud; single_object publishes only the one "
+                           f"tracked as '{labelled[0][0]}' (set single_object false for one feature per object)",
+                           "several objects")
+        else:
+            labelled = list(zip(self.tracker.update(centroids, t), scene.objects))
+        features = []
+        for object_id, obj in labelled:
+            code = self.predictor.encode(obj.points)
+            features.append(ShapeFeature(
+                header=header, object_id=object_id, model_id=self.predictor.model_id,
+                feature=np.asarray(code.feature, dtype=np.float32).reshape(-1).tolist(),
+                heading=float(code.heading), centroid=point(code.centroid), half_extents=vector3(code.half_extents),
+                num_points=int(len(obj.points))))
+        return features, self.markers(header, labelled), ""
+
+    def markers(self, header: Header, labelled) -> MarkerArray:
+        """DELETEALL, then per object a LINE_STRIP of its x-y convex hull on the table (z = 0, ns object_outline)
+        and its id as text above it (ns object_id); empty when publish_markers is off or nobody listens."""
+        if not self.get_parameter("publish_markers").value or self.pub_markers.get_subscription_count() == 0:
+            return MarkerArray()
+        out = [Marker(header=header, action=Marker.DELETEALL)]
+        for k, (object_id, obj) in enumerate(labelled):
+            r, g, b = PALETTE[zlib.crc32(object_id.encode()) % len(PALETTE)]
+            colour = ColorRGBA(r=r, g=g, b=b, a=1.0)
+            line = Marker(header=header, ns="object_outline", id=k, type=Marker.LINE_STRIP, action=Marker.ADD,
+                          color=colour, points=[Point(x=float(x), y=float(y), z=0.0) for x, y in outline_xy(obj.points)])
+            line.scale.x = 0.004
+            line.pose.orientation.w = 1.0
+            text = Marker(header=header, ns="object_id", id=k, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,
+                          color=colour, text=object_id)
+            c = obj.centroid
+            text.pose.position = Point(x=float(c[0]), y=float(c[1]), z=float(obj.points[:, 2].max()) + 0.03)
+            text.pose.orientation.w = 1.0
+            text.scale.z = 0.025
+            out += [line, text]
+        return MarkerArray(markers=out)
 
     def _reject(self, msg: PointCloud2, reason: str) -> None:
         self.last_error = reason
         self._warn(f"cloud ({cloud_size(msg)} points, frame '{msg.header.frame_id}') ignored: {reason}", reason)
 
-    def encode_cloud(self, msg: PointCloud2) -> ShapeFeature:
-        """Cloud message -> ShapeFeature; ValueError with the reason when the cloud cannot be used."""
-        if msg.header.frame_id != self.table_frame:
-            raise ValueError(f"frame_id '{msg.header.frame_id}' is not the table frame '{self.table_frame}' "
-                             "(transform the cloud first; this node does not use tf)")
-        cfg = self.config()
-        pts = cloud_to_xyz(msg, skip_nans=True, max_points=cfg.max_points, rng=self._rng)
-        if len(pts) == 0:
-            raise ValueError("the cloud has no finite points" if cloud_size(msg) else "the cloud is empty")
-        pts = preprocess(pts, cfg)
-        code = self.predictor.encode(pts)
-        return ShapeFeature(header=msg.header, object_id=self.get_parameter("object_id").value,
-                            model_id=self.predictor.model_id,
-                            feature=np.asarray(code.feature, dtype=np.float32).reshape(-1).tolist(),
-                            heading=float(code.heading), centroid=point(code.centroid),
-                            half_extents=vector3(code.half_extents), num_points=int(len(pts)))
-
     def on_cloud(self, msg: PointCloud2) -> None:
         t0 = time.monotonic()
         try:
-            feature = self.encode_cloud(msg)
+            features, markers, reason = self.process(msg)
         except ValueError as exc:
             self._reject(msg, str(exc))
             return
         except Exception as exc:  # noqa: BLE001 - one bad cloud must not kill the node
             self._reject(msg, f"{type(exc).__name__}: {exc}")
             return
-        self.pub.publish(feature)
+        for f in features:
+            self.pub.publish(f)
+        if markers.markers:
+            self.pub_markers.publish(markers)
+        self.last_ms = 1e3 * (time.monotonic() - t0)
+        if not features:
+            self._reject(msg, reason)
+            return
         self.processed += 1
-        self.get_logger().debug(f"feature from {cloud_size(msg)} points ({feature.num_points} kept) in "
-                                f"{1e3 * (time.monotonic() - t0):.1f} ms")
+        self.published += len(features)
+        self.get_logger().debug(f"{len(features)} feature(s) from {cloud_size(msg)} points in {self.last_ms:.1f} ms")
+
+    def destroy_node(self) -> None:
+        listener, self._tf_listener = self._tf_listener, None
+        if listener is not None:  # stop its thread and its own node (tf2_ros only does so when collected)
+            if getattr(listener, "executor", None) is not None:
+                listener.executor.shutdown()
+            thread = getattr(listener, "dedicated_listener_thread", None)
+            if thread is not None:
+                thread.join(2.0)
+            if getattr(listener, "node", None) is not None:
+                listener.node.destroy_node()
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

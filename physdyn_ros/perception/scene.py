@@ -315,7 +315,7 @@ def _clean(points: np.ndarray, cfg: SceneConfig, to_table: RigidTransform | None
     to_table = to_table if to_table is not None else RigidTransform.identity()
     if cfg.crop and len(pts):
         pts, to_table = crop_rows(to_table.apply(pts), cfg.crop_min, cfg.crop_max), RigidTransform.identity()
-    if cfg.remove_plane and len(pts) >= 3:
+    if cfg.remove_plane and len(pts) >= max(3, cfg.min_points):  # fewer cannot hold an object anyway
         sample = in_range(to_table.apply(random_rows(pts, PLANE_SAMPLE, rng)).astype(np.float64))
         plane = fit_table_plane(sample, cfg, rng)
         if plane is None:

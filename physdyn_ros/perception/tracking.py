@@ -1,9 +1,10 @@
 """Object ids that stay the same from cloud to cloud: nearest-centroid tracking with a gate (no ROS).
 
 Each track keeps the object's last centroid, a velocity estimate and the time it was last seen. For a new cloud
-(time t, the cloud's stamp in seconds) every track predicts where its object is now (constant velocity), and
-detections are matched to tracks by minimum total distance (Hungarian assignment) among pairs closer than
-`gate`. A matched detection keeps the track's id; an unmatched one starts a new track with a new id
+(time t, the cloud's stamp in seconds) every track predicts where its object is now (constant velocity); a
+detection's distance to a track is the smaller of its distances to that prediction and to the last centroid (the
+object may have stopped since), and detections are matched to tracks by minimum total distance (Hungarian
+assignment) among pairs closer than `gate`. A matched detection keeps the track's id; an unmatched one starts a new track with a new id
 (`<prefix><n>`, n counting from 1 and never reused by this tracker); a track not matched for more than `timeout`
 seconds is retired, so an object that comes back after that gets a new id. Time going backwards by more than
 `timeout` (a bag played again) clears every track.
@@ -56,7 +57,9 @@ class Tracker:
         from scipy.optimize import linear_sum_assignment
 
         pred = np.array([tr.predict(t) for tr in self.tracks])
-        dist = np.linalg.norm(centroids[:, None, :] - pred[None, :, :], axis=2)
+        last = np.array([tr.centroid for tr in self.tracks])
+        dist = np.minimum(np.linalg.norm(centroids[:, None, :] - pred[None, :, :], axis=2),
+                          np.linalg.norm(centroids[:, None, :] - last[None, :, :], axis=2))
         big = 1e6
         rows, cols = linear_sum_assignment(np.where(dist <= self.gate, dist, big))
         return {int(r): int(c) for r, c in zip(rows, cols) if dist[r, c] <= self.gate}
@@ -104,7 +107,7 @@ class Tracker:
             return None
         if self.tracks:
             tr = self.tracks[0]
-            dist = np.linalg.norm(c - tr.predict(t), axis=1)
+            dist = np.minimum(np.linalg.norm(c - tr.predict(t), axis=1), np.linalg.norm(c - tr.centroid, axis=1))
             best = int(np.argmin(dist))
             if dist[best] <= self.gate:
                 self._update(tr, c[best], t)
