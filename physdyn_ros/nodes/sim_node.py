@@ -4,6 +4,10 @@ Publishes the object's cloud on `cloud`, its true state on `object_state` / `odo
 velocities right after a push on `initial_twist`. Every pybullet call runs in one MutuallyExclusiveCallbackGroup,
 so one thread at a time touches the simulator (pybullet clients are not thread-safe).
 
+The cloud is in the table frame, or (cloud_frame: camera) in the simulated camera's optical frame (REP 103: z
+forward, x right, y down) named camera_frame, whose pose is published on /tf_static when tf2_msgs is importable
+(a ROS 2 install) and logged at start as the perception node's sensor_frame / sensor_transform parameters.
+
 Time: messages carry the simulation's time. It starts at the node clock and, while no push runs, follows it;
 during a push, frame k is stamped t0 + k * DT exactly. With real_time_factor 1 that is the wall clock; with
 real_time_factor 0 pushes are simulated as fast as possible, so the stamps run ahead of the wall clock (and stay
@@ -28,6 +32,7 @@ from std_srvs.srv import Trigger
 
 from ..conventions import DT, TABLE_FRAME
 from ..msg import ObjectState
+from ..perception.frames import RigidTransform, camera_optical_pose
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, pose, quat_to_matrix, twist, vector3, xyz_to_numpy
 from ..ros.params import declare
@@ -45,6 +50,10 @@ STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=R
                        durability=DurabilityPolicy.VOLATILE)
 #: Sensor drivers publish reliable (REP 2003); consumers may subscribe best effort.
 CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+#: /tf_static as tf2_ros.StaticTransformBroadcaster publishes it: latched for late listeners.
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+CLOUD_FRAMES = ("table", "camera")
 
 
 class SimNode(Node):
@@ -89,6 +98,17 @@ class SimNode(Node):
         declare(self, "camera_target", [0.0, 0.0, 0.05], "point the camera looks at, table frame, m")
         declare(self, "camera_resolution", [320, 240], "rendered image width, height in pixels")
         declare(self, "camera_fov", 60.0, "vertical field of view, degrees", low=1.0, high=170.0)
+        self.cloud_frame: str = declare(self, "cloud_frame", "table", "frame of the published cloud: 'table' "
+                                        "(table_frame) or 'camera' (camera_frame, the simulated camera's optical "
+                                        "frame at camera_eye looking at camera_target; its pose goes to "
+                                        "/tf_static)", read_only=True)
+        self.camera_frame: str = declare(self, "camera_frame", "camera_optical_frame", "name of the camera's "
+                                         "optical frame (z forward, x right, y down) for cloud_frame camera",
+                                         read_only=True)
+        if self.cloud_frame not in CLOUD_FRAMES:
+            raise ValueError(f"cloud_frame must be one of {list(CLOUD_FRAMES)}, got {self.cloud_frame!r}")
+        if self.cloud_frame == "camera" and (not self.camera_frame or self.camera_frame == self.table_frame):
+            raise ValueError(f"camera_frame must be a name other than table_frame, got {self.camera_frame!r}")
         declare(self, "max_push_time", 10.0, "s of simulated time after which a push ends even if the object "
                 "still moves", low=DT, high=600.0)
         declare(self, "max_linear_speed", 10.0, "pushes giving a faster centre of mass are rejected, m/s",
@@ -122,6 +142,15 @@ class SimNode(Node):
         self.pub_twist = self.create_publisher(TwistStamped, "initial_twist", 10)
         self.pub_cloud = self.create_publisher(PointCloud2, "cloud", CLOUD_QOS)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10) if self.publish_clock else None
+        self._camera_pose: RigidTransform | None = None  # last pose sent on /tf_static
+        self.pub_tf_static = None
+        if self.cloud_frame == "camera":
+            try:
+                from tf2_msgs.msg import TFMessage
+
+                self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+            except ImportError:  # ROS from PyPI wheels has no tf2_msgs: the perception node takes a parameter
+                pass
         g = self._group
         # At real_time_factor 0 the step timer fires every millisecond and simulates a batch of frames per tick,
         # so services (reset, rejected pushes) are still answered between batches.
@@ -139,6 +168,14 @@ class SimNode(Node):
         self.create_timer(1.0 / self.rate, self._on_idle, callback_group=g)
         if self.cloud_rate > 0:
             self.create_timer(1.0 / self.cloud_rate, self._on_cloud, callback_group=g)
+        if self.cloud_frame == "camera":
+            pose = self.camera_pose()
+            self.get_logger().info(
+                f"cloud in the camera frame '{self.camera_frame}': "
+                + ("its pose is on /tf_static" if self.pub_tf_static is not None else
+                   "tf2_msgs is not available, nothing is published on /tf_static")
+                + f"; without tf2 give the perception node sensor_frame:={self.camera_frame} "
+                f"sensor_transform:={[round(v, 6) for v in pose.as_list()]}")
         self.get_logger().info(
             f"ready: {self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
             f"'{self.table_frame}', real_time_factor {self.rtf:g}")
@@ -267,9 +304,38 @@ class SimNode(Node):
         c.resetBasePositionAndOrientation(self._visual[1], pos.tolist(), q.tolist())
         return self._visual[1]
 
+    def camera_pose(self) -> RigidTransform:
+        """Pose of camera_frame in the table frame (maps optical-frame points into the table frame) from the
+        current camera_eye / camera_target; published on /tf_static whenever it changes."""
+        p = self.get_parameter
+        pose = camera_optical_pose(p("camera_eye").value, p("camera_target").value)
+        if self.pub_tf_static is not None and (self._camera_pose is None or not (
+                np.allclose(pose.rotation, self._camera_pose.rotation)
+                and np.allclose(pose.translation, self._camera_pose.translation))):
+            from geometry_msgs.msg import TransformStamped
+            from tf2_msgs.msg import TFMessage
+
+            x, y, z, qx, qy, qz, qw = pose.as_list()
+            tf = TransformStamped(header=Header(frame_id=self.table_frame, stamp=self.get_clock().now().to_msg()),
+                                  child_frame_id=self.camera_frame)
+            tf.transform.translation.x, tf.transform.translation.y, tf.transform.translation.z = x, y, z
+            r = tf.transform.rotation
+            r.x, r.y, r.z, r.w = qx, qy, qz, qw
+            self.pub_tf_static.publish(TFMessage(transforms=[tf]))
+        self._camera_pose = pose
+        return pose
+
     def _on_cloud(self) -> None:
         stamp_ns = self._sim_ns if self._running else self._idle_stamp()
-        self.pub_cloud.publish(xyz_to_cloud(self.current_cloud(), self.table_frame, ns_to_time(stamp_ns)))
+        pts, frame = self.current_cloud(), self.table_frame
+        if self.cloud_frame == "camera":
+            try:
+                pose = self.camera_pose()
+            except ValueError as exc:  # camera_eye set equal to camera_target at run time
+                self.get_logger().warning(f"no cloud: {exc}", throttle_duration_sec=5.0)
+                return
+            pts, frame = pose.inverse().apply(np.asarray(pts, dtype=np.float64)), self.camera_frame
+        self.pub_cloud.publish(xyz_to_cloud(pts, frame, ns_to_time(stamp_ns)))
 
     def _on_idle(self) -> None:
         if not self._running:
