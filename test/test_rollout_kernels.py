@@ -185,15 +185,16 @@ def test_predictor_equals_the_previous_predictor(shipped):
                 assert np.abs(got - r).max() <= REL * max(np.abs(r).max(), 1.0), name
 
 
-def test_compose_rotations_equals_integrate_in_world():
+@pytest.mark.parametrize("batch", [4, 40])  # 4 x 62 quaternions: as 4x4 matrices; 40 x 62: by components
+def test_compose_rotations_equals_integrate_in_world(batch):
     from physdyn_ros.learn.frames import integrate_in_world
     from physdyn_ros.predictor import compose_rotations
 
     rng = np.random.default_rng(5)
-    d_rot = rng.normal(size=(4, 61, 3)) * np.array([0.01, 0.3, 1.5, 3.0])[:, None, None]
+    d_rot = rng.normal(size=(batch, 61, 3)) * rng.choice([0.01, 0.3, 1.5, 3.0], batch)[:, None, None]
     d_rot[0, :5] = 0.0  # exact identities
-    q0 = geo.quat_normalize(rng.normal(size=(4, 4)))
-    _, ref = integrate_in_world(np.zeros(4), np.zeros((4, 3)), q0, np.zeros_like(d_rot), d_rot)
+    q0 = geo.quat_normalize(rng.normal(size=(batch, 4)))
+    _, ref = integrate_in_world(np.zeros(batch), np.zeros((batch, 3)), q0, np.zeros_like(d_rot), d_rot)
     got = compose_rotations(q0, d_rot)
-    assert got.shape == (4, 62, 4) and np.allclose(np.linalg.norm(got, axis=-1), 1.0)
+    assert got.shape == (batch, 62, 4) and np.allclose(np.linalg.norm(got, axis=-1), 1.0)
     assert np.abs(got - ref).max() < 1e-12  # both have w >= 0

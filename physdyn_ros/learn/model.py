@@ -558,14 +558,14 @@ class DynamicsModel(nn.Module):
             fast = self._fast()
             if self.cfg.cell == "lstm":
                 kernel = self._kernel(fast)
-                if len(feature) == 1 and "np_w0" in kernel and next(self.parameters()).device.type == "cpu":
+                if len(feature) == 1 and "np_w0" in kernel:  # (numpy weights exist for float32 CPU models)
                     scale_in = kernel["np_in"]
                     x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
                     x_obs = (np.zeros((0, 6), np.float32) if obs_vel is None else
                              (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps])
                     raw, xs = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps))
                     return raw[None], xs[None], {"in": scale_in, "out": kernel["np_out"]}
-            device = next(self.parameters()).device
+            device = fast["in"].device
             tensor = lambda a: None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
             raw, xs = self.rollout_raw(tensor(feature), tensor(vel0), tensor(angvel0), steps, tensor(obs_vel),
                                        tensor(obs_angvel), fast)
