@@ -291,7 +291,15 @@ class Predictor:
         if isinstance(shapes, ShapeCode) or (isinstance(shapes, np.ndarray) and shapes.ndim == 2):
             codes = [self._code(shapes)]
         elif isinstance(shapes, (list, tuple)) or (isinstance(shapes, np.ndarray) and shapes.ndim == 3):
-            codes = [self._code(s) for s in shapes]
+            checked: dict[int, ShapeCode] = {}  # a planner passes the same code many times: check it once
+            codes = []
+            for s in shapes:
+                if isinstance(s, ShapeCode):
+                    if id(s) not in checked:
+                        checked[id(s)] = self._code(s)
+                    codes.append(checked[id(s)])
+                else:
+                    codes.append(self._code(s))
             if not codes:
                 raise ValueError("shapes is empty")
         else:
