@@ -1,25 +1,42 @@
 #!/usr/bin/env python3
-"""Latency and throughput of the Predictor against pybullet on the same trajectories.
+"""Latency and throughput of the Predictor against pybullet and the machine's matmul peak, in one run.
 
-    .venv/bin/python bench/bench_predictor.py [--model PATH] [--threads 1] [--repeats 200]
+    .venv/bin/python bench/bench_predictor.py [--model PATH] [--repeats 200] [--rounds 3] [--batch 1024]
 
-* latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (the ROS predictor's and planner's
-  per-query cost), p50 / p99 over --repeats calls; also encode + roll-out from a raw cloud.
-* throughput: trajectories per second of rollout_batch at batch 64 / 256 / 1024.
-* pybullet: physdyn_ros.sim.simulate_from_state re-simulating the same initial states (convex hull of the same
-  clouds, the dataset generator's physics settings) on one thread, trajectories per second.
-Goals: one roll-out <= 5 ms; batched >= 100x pybullet's trajectories per second.
-Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights:
-speed does not depend on the weights.
+Everything that is compared is measured in the same process, interleaved in --rounds rounds (a shared machine's
+load then weighs on both sides of a ratio alike), with torch on one thread:
+* latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (Predictor.rollout: the ROS predictor's and
+  planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud.
+* pybullet: physdyn_ros.sim.simulate_from_state re-simulating the same pushes (convex hull of the same clouds, the
+  dataset generator's physics settings; pybullet is single-threaded), median ms per push.
+* batched: trajectories per second of rollout_batch at --batch on one thread (the median over rounds), its FLOP/s
+  (FLOPs of the matrix products per roll-out, from the model's layer sizes: elementwise work not counted) as a
+  fraction of the peak, and the same per core against pybullet; also the model's roll-out alone
+  (DynamicsModel.rollout_raw: no input checks, frames or integration) as kernel_fraction_of_peak;
+  --batch-threads > 1 adds a multi-thread line.
+* peak: a plain 1024^3 fp32 matmul (torch) on one thread, best of 3 just before and 3 just after each round's
+  batch; each round's fraction of peak uses that round's peak, and the median over rounds is reported.
+* msg_build_ms: physdyn_ros.ros.trajectory_to_msg of a 60-step trajectory (61 states), p50.
+Goals (issue 13): batch-1 roll-out >= 5x faster than a pybullet push; batched >= 60 % of the fp32 matmul peak and
+>= 60x pybullet per core.
+The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms, b1_speedup_vs_pybullet,
+batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core, matmul_gflops_1thread, batched_gflops_1thread,
+batched_fraction_of_peak, kernel_fraction_of_peak, mflop_per_rollout, msg_build_ms (and batch, horizon, precision,
+threads). A figure that
+could not be measured (no pybullet, no rclpy) is null, never a traceback.
+Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
+does not depend on the weights.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any, Optional
 
 import numpy as np
 
@@ -42,8 +59,24 @@ def random_weights_checkpoint(config: Path, path: Path) -> None:
     save_checkpoint(path, model=model, config=cfg, dataset={}, include_rng=False)
 
 
-def percentiles(samples: list[float]) -> tuple[float, float]:
-    return float(np.percentile(samples, 50) * 1e3), float(np.percentile(samples, 99) * 1e3)
+def rollout_flops(cfg: Any, steps: int) -> int:
+    """FLOPs (2 per multiply-add) of the matrix products of one roll-out of `steps` steps.
+
+    LSTM: per step layer 0 multiplies [v, w] (6) and h_0 (H) by its 4 H gate columns (the shape-feature term is
+    constant: once per roll-out), layer l > 0 [h_{l-1}, h_l] (2 H), the head H -> 13, input_skip 6 -> 13.
+    MLP baseline: its layers on [v, w, feature] every step.
+    """
+    f, h = cfg.shape_mlp[-1], cfg.hidden_size
+    skip = 2 * 6 * 13 if cfg.input_skip else 0
+    if cfg.cell == "lstm":
+        per_step = 2 * (6 + h) * 4 * h + (cfg.num_layers - 1) * 2 * (2 * h) * 4 * h + 2 * h * 13 + skip
+        return steps * per_step + 2 * f * 4 * h
+    dims = [6 + f] + [h] * (cfg.mlp_layers - 1) + [13]
+    return steps * (sum(2 * a * b for a, b in zip(dims[:-1], dims[1:])) + skip)
+
+
+def pct(samples: list[float], q: float) -> float:
+    return float(np.percentile(samples, q) * 1e3)
 
 
 def make_cases(n: int, seed: int = 0) -> list[dict]:
@@ -69,15 +102,90 @@ def make_cases(n: int, seed: int = 0) -> list[dict]:
     return cases
 
 
+class PyBullet:
+    """simulate_from_state on one shared simulator; None-safe when pybullet is not installed."""
+
+    def __init__(self, horizon: int) -> None:
+        self.horizon = horizon
+        self.error = ""
+        try:
+            from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
+        except ImportError as exc:
+            self.sim = None
+            self.error = str(exc)
+            return
+        self.config = SimConfig(collision="hull")
+        self.simulate = simulate_from_state
+        self.sim = Simulator(self.config)
+
+    def push(self, c: dict) -> float:
+        t0 = time.perf_counter()
+        self.simulate(c["shape"].points, c["scale"], c["pos"], c["quat"], c["lin_vel"], c["ang_vel"],
+                      num_frames=self.horizon + 1, config=self.config, sim=self.sim)
+        return time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self.sim is not None:
+            self.sim.close()
+
+
+def matmul_peak(dtype: Any) -> float:
+    """GFLOP/s of the best of 3 plain 1024^3 matmuls (torch, current thread setting)."""
+    import torch
+
+    a, b = torch.randn(1024, 1024, dtype=dtype), torch.randn(1024, 1024, dtype=dtype)
+    a @ b
+    best = min(_timed(lambda: a @ b) for _ in range(3))
+    return 2 * 1024**3 / best / 1e9
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def kernel_inputs(pred: Any, shapes: list, v: np.ndarray, w: np.ndarray) -> tuple:
+    """Model inputs of a batch (features, velocities in frame C) for timing the model without the Predictor."""
+    import torch
+
+    from physdyn_ros.learn.frames import world_to_c
+
+    headings = np.array([c.heading for c in shapes])
+    f32 = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float32))  # noqa: E731
+    return (f32(np.stack([c.feature for c in shapes])), f32(world_to_c(v, headings)), f32(world_to_c(w, headings)))
+
+
+def kernel_rollout(pred: Any, inputs: tuple, horizon: int) -> Any:
+    """DynamicsModel.rollout_raw alone (no input checks, frames or integration): the roll-out kernel."""
+    import torch
+
+    with torch.inference_mode():
+        return pred._model.rollout_raw(*inputs, horizon)
+
+
+def msg_build_samples(traj: Any, repeats: int) -> Optional[list[float]]:
+    try:
+        from physdyn_ros.ros.convert import ns_to_time
+        from physdyn_ros.ros.trajectory import trajectory_to_msg
+    except ImportError as exc:  # no ROS 2 Python packages in this environment
+        print(f"trajectory_to_msg unavailable: {exc}")
+        return None
+    stamp = ns_to_time(1_700_000_000_000_000_000)
+    trajectory_to_msg(traj, "table", stamp, "object", "model")
+    return [_timed(lambda: trajectory_to_msg(traj, "table", stamp, "object", "model")) for _ in range(repeats)]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=None, help="checkpoint (default: the shipped model, else random weights)")
-    ap.add_argument("--threads", type=int, default=1, help="torch threads for the latency test (default 1)")
-    ap.add_argument("--batch-threads", type=int, default=None,
-                    help="torch threads for the batched test (default: --threads, then also os.cpu_count())")
-    ap.add_argument("--repeats", type=int, default=200)
+    ap.add_argument("--repeats", type=int, default=200, help="batch-1 roll-outs (split over the rounds)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved measurement rounds (default 5)")
     ap.add_argument("--horizon", type=int, default=60)
-    ap.add_argument("--pybullet-trajectories", type=int, default=64)
+    ap.add_argument("--batch", type=int, default=1024, help="batch size of the throughput test (default 1024)")
+    ap.add_argument("--batch-threads", type=int, default=1,
+                    help="also time the batch on this many threads (default 1: only the one-thread figure)")
+    ap.add_argument("--pybullet-trajectories", type=int, default=48, help="pushes simulated (split over the rounds)")
     args = ap.parse_args()
 
     import torch
@@ -95,70 +203,116 @@ def main() -> int:
         model_path = str(Path(tmp.name) / "random.pt")
         random_weights_checkpoint(ROOT / "config" / "model_default.yaml", Path(model_path))
         note = " (no shipped model: default architecture, random weights)"
-    pred = Predictor.load(model_path, threads=args.threads)
-    print(f"model {pred.model_id}{note}; torch {torch.__version__}, {torch.get_num_threads()} thread(s), "
-          f"{os.cpu_count()} CPU(s)")
+    pred = Predictor.load(model_path, threads=1)
+    cfg = pred._model.cfg
+    dtype = next(pred._model.parameters()).dtype
+    flops = rollout_flops(cfg, args.horizon)
+    precision = str(dtype).replace("torch.", "")
+    print(f"model {pred.model_id}{note}; torch {torch.__version__}, numpy {np.__version__}, {os.cpu_count()} CPU(s); "
+          f"{precision}; {flops / 1e6:.2f} MFLOP per {args.horizon}-step roll-out")
+    if os.environ.get("OPENBLAS_CORETYPE"):
+        print(f"note: OPENBLAS_CORETYPE={os.environ['OPENBLAS_CORETYPE']} (numpy's BLAS: the batch-1 path)")
 
-    cases = make_cases(max(args.pybullet_trajectories, 1024))
-    codes = [pred.encode(c["cloud"]) for c in cases[:16]]
-    c0 = cases[0]
-    # ---- latency at batch 1
-    lat = []
-    for i in range(args.repeats + 10):
-        t0 = time.perf_counter()
+    rounds = max(1, args.rounds)
+    cases = make_cases(max(args.pybullet_trajectories, args.batch, 64))
+    codes = [pred.encode(c["cloud"]) for c in cases[:64]]
+    shapes = [codes[i % 64] for i in range(args.batch)]
+    bv = np.stack([cases[i]["lin_vel"] for i in range(args.batch)])
+    bw = np.stack([cases[i]["ang_vel"] for i in range(args.batch)])
+    pyb = PyBullet(args.horizon)
+    if pyb.sim is None:
+        print(f"pybullet baseline unavailable: {pyb.error}")
+    for i in range(10):  # warm-up
         pred.rollout(codes[i % 16], cases[i % 16]["lin_vel"], cases[i % 16]["ang_vel"], args.horizon)
-        if i >= 10:
-            lat.append(time.perf_counter() - t0)
-    full = []
-    for i in range(min(args.repeats, 100)):
-        t0 = time.perf_counter()
-        pred.rollout(cases[i % 16]["cloud"], c0["lin_vel"], c0["ang_vel"], args.horizon)
-        full.append(time.perf_counter() - t0)
-    p50, p99 = percentiles(lat)
-    f50, f99 = percentiles(full)
-    print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms "
-          f"(goal <= 5 ms: {'met' if p50 <= 5 else 'NOT met'})")
-    print(f"latency, encode ({len(c0['cloud'])} points) + roll-out:        p50 {f50:.2f} ms, p99 {f99:.2f} ms")
+    pred.rollout_batch(shapes, bv, bw, args.horizon)
+    if pyb.sim is not None:
+        pyb.push(cases[0])
 
-    # ---- pybullet on the same trajectories
-    pyb_rate = None
-    try:
-        from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
+    lat: list[float] = []
+    full: list[float] = []
+    pyb_times: list[float] = []
+    batched_rates: list[float] = []
+    peaks: list[float] = []
+    fractions: list[float] = []
+    kernel_fractions: list[float] = []
+    kernel_in = kernel_inputs(pred, shapes, bv, bw)
+    kernel_rollout(pred, kernel_in, args.horizon)
+    per_round = max(1, args.repeats // rounds)
+    pushes = max(1, args.pybullet_trajectories // rounds)
+    for r in range(rounds):
+        torch.set_num_threads(1)
+        # pybullet pushes and batch-1 roll-outs alternate, so that both see the same load
+        for j in range(pushes):
+            if pyb.sim is not None:
+                pyb_times.append(pyb.push(cases[r * pushes + j]))
+            for i in range(j * per_round // pushes, (j + 1) * per_round // pushes):
+                k = (r * per_round + i) % 16
+                lat.append(_timed(lambda: pred.rollout(codes[k], cases[k]["lin_vel"], cases[k]["ang_vel"],
+                                                       args.horizon)))
+        for i in range(max(1, min(per_round, 100 // rounds))):
+            k = i % 16
+            full.append(_timed(lambda: pred.rollout(cases[k]["cloud"], cases[k]["lin_vel"], cases[k]["ang_vel"],
+                                                    args.horizon)))
+        # the batch between two peak measurements; the round's peak is the better of the two
+        peak = matmul_peak(dtype)
+        t = _timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon))
+        t_kernel = _timed(lambda: kernel_rollout(pred, kernel_in, args.horizon))
+        peak = max(peak, matmul_peak(dtype))
+        rate = args.batch / t
+        peaks.append(peak)
+        batched_rates.append(rate)
+        fractions.append(rate * flops / 1e9 / peak)
+        kernel_fractions.append(args.batch / t_kernel * flops / 1e9 / peak)
+        print(f"round {r + 1}/{rounds}: batch-1 p50 {pct(lat[-per_round:], 50):.2f} ms"
+              + (f", pybullet {pct(pyb_times[-pushes:], 50):.1f} ms/push" if pyb_times else "")
+              + f", matmul {peak:.1f} GFLOP/s, batch {args.batch} {rate:.0f} traj/s ({fractions[-1]:.0%} of peak; "
+              f"model alone {kernel_fractions[-1]:.0%})")
 
-        config = SimConfig(collision="hull")
-        n = args.pybullet_trajectories
-        with Simulator(config) as sim:
-            simulate_from_state(c0["shape"].points, c0["scale"], c0["pos"], c0["quat"], c0["lin_vel"],
-                                c0["ang_vel"], num_frames=args.horizon + 1, config=config, sim=sim)  # warm-up
-            t0 = time.perf_counter()
-            for c in cases[:n]:
-                simulate_from_state(c["shape"].points, c["scale"], c["pos"], c["quat"], c["lin_vel"], c["ang_vel"],
-                                    num_frames=args.horizon + 1, config=config, sim=sim)
-            pyb_rate = n / (time.perf_counter() - t0)
-        print(f"pybullet (simulate_from_state, convex hull, {config.physics_hz} Hz, 1 thread): "
-              f"{pyb_rate:.0f} trajectories/s ({1e3 / pyb_rate:.1f} ms each)")
-    except ImportError as exc:
-        print(f"pybullet baseline unavailable: {exc}")
-
-    # ---- batched throughput
-    thread_options = [args.batch_threads] if args.batch_threads else sorted({args.threads, os.cpu_count() or 1})
-    all_codes = [pred.encode(c["cloud"]) for c in cases[:64]]
-    for threads in thread_options:
-        torch.set_num_threads(threads)
-        for b in (64, 256, 1024):
-            shapes = [all_codes[i % 64] for i in range(b)]
-            v = np.stack([cases[i]["lin_vel"] for i in range(b)])
-            w = np.stack([cases[i]["ang_vel"] for i in range(b)])
-            pred.rollout_batch(shapes, v, w, args.horizon)  # warm-up for this batch size
-            reps = max(1, int(2048 // b))
-            t0 = time.perf_counter()
-            for _ in range(reps):
-                pred.rollout_batch(shapes, v, w, args.horizon)
-            rate = b * reps / (time.perf_counter() - t0)
-            ratio = f", {rate / pyb_rate:.0f}x pybullet (goal >= 100x)" if pyb_rate else ""
-            print(f"batched roll-outs, batch {b:4d}, {threads} thread(s): {rate:8.0f} trajectories/s{ratio}")
+    p50, p99 = pct(lat, 50), pct(lat, 99)
+    pyb_ms = pct(pyb_times, 50) if pyb_times else None
+    rate = float(np.median(batched_rates))
+    peak = float(max(peaks))
+    fraction = float(np.median(fractions))
+    kernel_fraction = float(np.median(kernel_fractions))
+    print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+    print(f"latency, encode ({len(cases[0]['cloud'])} points) + roll-out:        p50 {pct(full, 50):.2f} ms, "
+          f"p99 {pct(full, 99):.2f} ms")
+    b1_speedup = pyb_speedup = None
+    if pyb_ms is not None:
+        b1_speedup = pyb_ms / p50
+        pyb_speedup = rate / (1e3 / pyb_ms)
+        print(f"pybullet (simulate_from_state, convex hull, {pyb.config.physics_hz} Hz, 1 thread): {pyb_ms:.2f} ms "
+              f"per push ({1e3 / pyb_ms:.0f} trajectories/s); batch-1 roll-out {b1_speedup:.1f}x faster "
+              f"(goal >= 5x: {'met' if b1_speedup >= 5 else 'NOT met'})")
+    print(f"batched roll-outs, batch {args.batch}, 1 thread: {rate:.0f} trajectories/s = {rate * flops / 1e9:.1f} "
+          f"GFLOP/s, {fraction:.0%} of the {precision} matmul peak {peak:.1f} GFLOP/s (goal >= 60 %: "
+          f"{'met' if fraction >= 0.6 else 'NOT met'}; the model alone {kernel_fraction:.0%})"
+          + (f"; {pyb_speedup:.0f}x pybullet per core (goal >= 60x: {'met' if pyb_speedup >= 60 else 'NOT met'})"
+             if pyb_speedup is not None else ""))
+    if args.batch_threads > 1:
+        torch.set_num_threads(args.batch_threads)
+        pred.rollout_batch(shapes, bv, bw, args.horizon)
+        t = min(_timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon)) for _ in range(rounds))
+        print(f"batched roll-outs, batch {args.batch}, {args.batch_threads} threads: {args.batch / t:.0f} "
+              f"trajectories/s")
+        torch.set_num_threads(1)
+    traj = pred.rollout(codes[0], cases[0]["lin_vel"], cases[0]["ang_vel"], args.horizon)
+    msg = msg_build_samples(traj, max(20, args.repeats // 2))
+    msg_ms = pct(msg, 50) if msg else None
+    if msg_ms is not None:
+        print(f"trajectory_to_msg, {len(traj.positions)} states: p50 {msg_ms:.2f} ms")
+    pyb.close()
     if tmp is not None:
         tmp.cleanup()
+    r3 = lambda x: None if x is None else round(float(x), 3)  # noqa: E731
+    print(json.dumps({
+        "rollout_b1_p50_ms": r3(p50), "rollout_b1_p99_ms": r3(p99), "pybullet_push_ms": r3(pyb_ms),
+        "b1_speedup_vs_pybullet": r3(b1_speedup), "batched_traj_per_s_1thread": r3(rate),
+        "batched_speedup_vs_pybullet_per_core": r3(pyb_speedup), "matmul_gflops_1thread": r3(peak),
+        "batched_gflops_1thread": r3(rate * flops / 1e9), "batched_fraction_of_peak": r3(fraction),
+        "kernel_fraction_of_peak": r3(kernel_fraction),
+        "mflop_per_rollout": r3(flops / 1e6), "msg_build_ms": r3(msg_ms), "batch": args.batch,
+        "horizon": args.horizon, "precision": precision, "threads": 1}))
     return 0
 
 
