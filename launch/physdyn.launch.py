@@ -5,25 +5,38 @@
 The same nodes, names and params file as `physdyn up` (physdyn_ros/launcher.py); test_ros_launch.py checks that
 the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `initial_twist` and
 `object_state` from your own sensors / tracker instead.
+
+Dense clouds: the nodes get the Fast DDS profile config/fastdds.xml (a 16 MB shared-memory segment) through
+FASTRTPS_DEFAULT_PROFILES_FILE / FASTDDS_DEFAULT_PROFILES_FILE, unless one is already set in the environment;
+dds_profile:=/path/to/profile.xml names another.
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 
 def generate_launch_description():
     default_params = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'suite.yaml')
+    default_dds_profile = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'fastdds.xml')
     params_file = LaunchConfiguration('params_file')
+    dds_profile = LaunchConfiguration('dds_profile')
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='node parameters, one section per node (/sim, /perception, /predictor)'),
         DeclareLaunchArgument('use_sim', default_value='true',
                               description='start the simulated table (sim node)'),
+        DeclareLaunchArgument('dds_profile', default_value=EnvironmentVariable(
+            'FASTRTPS_DEFAULT_PROFILES_FILE', default_value=EnvironmentVariable(
+                'FASTDDS_DEFAULT_PROFILES_FILE', default_value=default_dds_profile)),
+            description='Fast DDS XML profile of the nodes (default: the one already set in the environment, '
+                        'else config/fastdds.xml: a 16 MB shared-memory segment for dense clouds)'),
+        SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', dds_profile),
+        SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', dds_profile),
         Node(package='physdyn_ros', executable='sim_node', name='sim', parameters=[params_file],
              output='screen', condition=IfCondition(LaunchConfiguration('use_sim'))),
         Node(package='physdyn_ros', executable='perception_node', name='perception', parameters=[params_file],

@@ -6,6 +6,9 @@ A user's overrides (--param NODE:NAME:=VALUE, --model, --real-time-factor ...) g
 under the node's own section, because rclpy ranks a node's section of a params file above `-p name:=value`
 (which applies to `/**`): passed as -p they were silently dropped for every name that config/suite.yaml sets.
 An override of a parameter the node does not have is refused before anything starts.
+Dense clouds: unless FASTRTPS_DEFAULT_PROFILES_FILE or FASTDDS_DEFAULT_PROFILES_FILE is already set, both point the
+nodes at config/fastdds.xml (a 16 MB shared-memory segment: with Fast DDS's 512 KB default, 100k-point clouds
+between processes were lost). Set either variable to use your own profile.
 Each node's output is forwarded line by line with its name in front (or written to a log folder). Ctrl-C or
 SIGTERM is forwarded to every node as SIGINT (rclpy shuts down cleanly on it). If a node exits during start-up
 or later, the others are stopped and the command exits non-zero, naming the node and its exit code.
@@ -32,6 +35,10 @@ NODES: tuple[tuple[str, str], ...] = (("sim", "sim_node"), ("perception", "perce
 CONFIG_NAME = "suite.yaml"
 #: A node logs "<name>]: ready: ..." once it serves (model loaded and warmed up, object spawned).
 READY_MARK = "]: ready:"
+#: The Fast DDS profile the nodes get unless the user names one (config/fastdds.xml).
+DDS_PROFILE_NAME = "fastdds.xml"
+#: Fast DDS 2.x reads the first, Fast DDS 3 the second: both are set, to the same file.
+DDS_PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 #: Parameters of the shipped params file's shared section (/**) that a node does not declare.
 NOT_DECLARED = {"sim": {"model_path"}}
 
@@ -40,6 +47,23 @@ def default_config() -> Path:
     from .resources import config_path
 
     return config_path(CONFIG_NAME)
+
+
+def dds_profile_env(env: dict[str, str]) -> str | None:
+    """Point Fast DDS at config/fastdds.xml in `env` unless it already names a profile (either variable, even
+    empty); returns the profile the nodes will use (None: Fast DDS's defaults, or the file is not installed)."""
+    for var in DDS_PROFILE_VARS:
+        if var in env:
+            return env[var] or None
+    try:
+        from .resources import config_path
+
+        path = str(config_path(DDS_PROFILE_NAME))
+    except FileNotFoundError:
+        return None
+    for var in DDS_PROFILE_VARS:
+        env[var] = path
+    return path
 
 
 def known_parameters(node: str) -> dict[str, Any]:
@@ -156,6 +180,7 @@ class Suite:
         self.env.setdefault("PYTHONUNBUFFERED", "1")
         self.env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
         self.env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+        self.dds_profile = dds_profile_env(self.env)
         self.procs: list[NodeProcess] = []
         self._files: list[IO[str]] = []
 
@@ -269,7 +294,8 @@ def run(args: argparse.Namespace) -> int:
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         suite.start()
-        print(f"physdyn up: starting {', '.join(p.name for p in suite.procs)} with {suite.config}", flush=True)
+        print(f"physdyn up: starting {', '.join(p.name for p in suite.procs)} with {suite.config}"
+              f" (DDS profile: {suite.dds_profile or 'Fast DDS defaults'})", flush=True)
         try:
             deadline = time.monotonic() + args.startup_timeout
             while not stop.is_set() and not all(p.ready.is_set() for p in suite.procs):
