@@ -500,6 +500,8 @@ class DynamicsModel(nn.Module):
 
         vel0/angvel0 (B, 3) are the state at frame 0; obs_vel/obs_angvel (B, K, 3) optionally observed states
         of frames 1..K, fed instead of the model's own predictions ("steps in" = K + 1).
+        LSTM kernels: with autograd on the differentiable _lstm_rollout; without, the same function faster in
+        _numpy_lstm_rollout (batch 1, float32 on the CPU) or _fused_lstm_rollout (test/test_rollout_kernels.py).
         """
         fast = fast or self._fast()
         x0 = self._inputs(vel0, angvel0, fast)
