@@ -1,4 +1,6 @@
-"""Shapes: procedural categories, mass properties, user meshes, pybullet_data test meshes (no pybullet here)."""
+"""Shapes: procedural categories and families, mass properties, user meshes, pybullet_data test meshes.
+
+pybullet only in the settle / collision tests of the families (the shapes package itself never imports it)."""
 from __future__ import annotations
 
 import subprocess
@@ -163,3 +165,188 @@ def test_shapes_and_data_do_not_import_pybullet():
     code = ("import sys, physdyn_ros.shapes, physdyn_ros.data; "
             "bad = [m for m in ('pybullet', 'torch', 'rclpy') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ------------------------------------------------------------------------------------------ the broad world
+from physdyn_ros.shapes import (ALL_CATEGORIES, FAMILIES, FAMILY_CATALOGUE, HELD_OUT_FAMILIES,  # noqa: E402
+                                resolve_shape)
+from physdyn_ros.shapes import solids  # noqa: E402
+
+
+def _inside_depth(points: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """How deep each point lies inside the convex hull of `part` (m; <= 0: outside or on its surface)."""
+    from physdyn_ros.shapes import convex_hull
+
+    n, d = solids._planes(*convex_hull(part))
+    return -(np.asarray(points, dtype=np.float64) @ n.T - d).max(1)
+
+
+def test_family_catalogue():
+    names = [f.name for f in FAMILY_CATALOGUE]
+    assert tuple(names) == ALL_CATEGORIES == CATEGORIES + FAMILIES
+    assert len(FAMILIES) >= 10 and not set(FAMILIES) & set(CATEGORIES)
+    assert {f.group for f in FAMILY_CATALOGUE if f.name in CATEGORIES} == {"paper"}
+    assert len({f.group for f in FAMILY_CATALOGUE}) >= 6 and all(f.description for f in FAMILY_CATALOGUE)
+    assert len(HELD_OUT_FAMILIES) >= 3 and set(HELD_OUT_FAMILIES) <= set(FAMILIES)
+    for fam in FAMILIES:  # every way of naming a shape accepts the families
+        a, b = resolve_shape(fam, 4, ""), make_procedural(fam, 4)
+        assert a.name == b.name == f"{fam}_0004" and a.category == fam
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+    with pytest.raises(ValueError, match="unknown category"):
+        resolve_shape("chair", 0, "")
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_family_is_a_varied_closed_solid(family):
+    entry = {f.name: f for f in FAMILY_CATALOGUE}[family]
+    shapes = generate_shapes(family, 10, seed=3)
+    assert [s.name for s in shapes] == [f"{family}_{i:04d}" for i in range(10)]
+    extents = np.array([s.extents for s in shapes])
+    # Tabletop sizes (largest extent 4-40 cm, nothing thinner than 1.2 cm) and real variety.
+    assert extents.max(1).min() >= 0.04 and extents.max() <= 0.40, extents
+    assert extents.min() >= 0.012, extents
+    assert len({tuple(np.round(e, 5)) for e in extents}) == 10
+    assert len({s.fingerprint() for s in shapes}) == 10
+    assert np.ptp(extents.max(1)) > 0.03
+    for s in shapes:
+        assert s.category == family and s.convex == entry.convex
+        # Closed and outward: positive signed volume, the same wherever the origin is, face areas cancel.
+        vol, _, _ = mesh_moments(s.vertices, s.faces)
+        assert vol > 0
+        assert mesh_moments(s.vertices + [0.3, -0.2, 0.5], s.faces)[0] == pytest.approx(vol, rel=1e-9)
+        assert solids.closure_error(s.vertices, s.faces) < 1e-9
+        mp = s.mass_properties()
+        assert np.all(np.isfinite(mp.inertia)) and mp.mass > 0
+        np.testing.assert_allclose(mp.com, 0, atol=1e-9)  # object frame origin = centre of mass
+        moments = np.linalg.eigvalsh(mp.inertia)
+        assert moments.min() > 0 and moments.max() <= moments.sum() - moments.max() + 1e-15  # triangle inequality
+        assert s.points.shape == (NUM_POINTS, 3) and np.all(np.isfinite(s.points))
+        lo, hi = s.bounds
+        assert np.all(s.points >= lo - 1e-6) and np.all(s.points <= hi + 1e-6)
+        # Upright on a face: the centre of mass is above the plane and over the support polygon.
+        assert lo[2] < 0 < hi[2]
+        assert solids.support_margin(s.vertices, np.zeros(3)) > 0
+        hull_volume = mass_properties(*s.hull()).volume
+        if entry.convex:
+            assert s.parts is None and vol == pytest.approx(hull_volume, rel=1e-6)
+            continue
+        # Convex pieces: inside the bounds, together at least the solid (overlaps count once in the solid).
+        assert s.parts and all(p.shape[1] == 3 and len(p) >= 4 for p in s.parts)
+        assert np.all(np.vstack(s.parts) >= lo - 1e-9) and np.all(np.vstack(s.parts) <= hi + 1e-9)
+        part_volumes = sum(mass_properties(*solids.convex_hull(p)).volume for p in s.parts)
+        assert vol <= part_volumes * (1 + 1e-9) and vol < hull_volume * (1 + 1e-9)
+        # The cloud lies on the union's surface, never inside a piece (the faces where pieces meet are gone).
+        assert max(_inside_depth(s.points, p).max() for p in s.parts) < 1e-6
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_family_is_deterministic_per_seed(family):
+    a, b = make_procedural(family, 2, seed=1), make_procedural(family, 2, seed=1)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.points, b.points)
+    assert a.params == b.params and (a.parts is None) == (b.parts is None)
+    for p, q in zip(a.parts or (), b.parts or ()):
+        np.testing.assert_array_equal(p, q)
+    np.testing.assert_array_equal(generate_shapes(family, 3, 1)[2].vertices, a.vertices)
+    assert make_procedural(family, 2, seed=2).fingerprint() != a.fingerprint()
+    assert make_procedural(family, 3, seed=1).fingerprint() != a.fingerprint()
+
+
+def test_paper_categories_unchanged():
+    """The six categories draw exactly what they drew before the families came (digests of their parameters,
+    names, convex flags, volumes, no parts)."""
+    import hashlib
+    import json
+
+    expected = {"box": "30b5b54a2bac3a86", "cylinder": "8243752bd65f1aff", "bottle": "2e7d1fb6cb797fe8",
+                "mug": "f20dac1f7c26c575", "trashcan": "558ea71a23d22245", "speaker": "272d0e2e399bd40d"}
+    for c in CATEGORIES:
+        data = json.dumps([[s.name, s.convex, s.params, round(float(s.mass_properties().volume), 9), s.parts]
+                           for s in generate_shapes(c, 4, seed=0)], sort_keys=True)
+        assert hashlib.sha256(data.encode()).hexdigest()[:16] == expected[c], c
+
+
+def test_union_surface_mass_properties_are_exact():
+    box = solids.box_points
+    # Overlapping boxes: the overlap counts once.
+    v, f = solids.union_surface([box((0, 0, 0), (2, 1, 1)), box((1, 0, 0), (3, 1, 1))])
+    mp = mass_properties(v, f, density=1.0)
+    assert mp.volume == pytest.approx(3.0, rel=1e-12)
+    np.testing.assert_allclose(mp.com, [1.5, 0.5, 0.5], atol=1e-12)
+    np.testing.assert_allclose(np.diag(mp.inertia), [(1 + 1) / 12 * 3, (9 + 1) / 12 * 3, (9 + 1) / 12 * 3],
+                               rtol=1e-12)
+    # A box standing face to face on a bigger one: the touching faces vanish, the area is the union's.
+    v, f = solids.union_surface([box((0, 0, 0), (2, 2, 1)), box((0.5, 0.5, 1), (1.5, 1.5, 2))])
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert mass_properties(v, f, density=1.0).volume == pytest.approx(5.0, rel=1e-12)
+    assert area == pytest.approx(4 + 3 + 8 + 1 + 4, rel=1e-12) and solids.closure_error(v, f) < 1e-12
+    # A ball sunk into a box: the union's volume (Monte Carlo, 0.3 % here) and a closed surface.
+    ball = solids.ellipsoid_points((0.5, 0.5, 0.5), 12, 24) + [1.0, 1.0, 1.2]
+    v, f = solids.union_surface([box((0, 0, 0), (2, 2, 1)), ball])
+    q = np.random.default_rng(0).uniform([0, 0, 0], [2, 2, 1.7], (400_000, 3))
+    inside = (q[:, 2] <= 1) | (_inside_depth(q, ball) > 0)
+    assert mass_properties(v, f).volume == pytest.approx(inside.mean() * 2 * 2 * 1.7, rel=0.003)
+    assert solids.closure_error(v, f) < 1e-9
+
+
+def test_rest_on_stable_face():
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 3.0]]) @ np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0.0]])
+    v, f = solids.convex_hull(pts)
+    com = mass_properties(v, f).com
+    assert solids.support_margin(v, com) < 0  # lying on its side face, it would tip
+    rot, score = solids.rest_on_stable_face(v, f)
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rot) == pytest.approx(1.0) and score > 0
+    assert solids.support_margin(v @ rot.T, com @ rot.T) > 0
+
+
+def _settle(shape, scale=(1.0, 1.0, 1.0), collision="auto", cache=None):
+    from physdyn_ros.sim import SimConfig, Simulator
+    from physdyn_ros.sim.simulator import tilt_angle
+
+    sim = Simulator(SimConfig(collision=collision, vhacd_cache_dir=str(cache) if cache else None))
+    sim.spawn(shape, scale=scale, yaw=0.7)
+    for _ in range(15):  # 1 s more, untouched
+        pos, q, v, w = sim.step_frame()
+    return sim, float(np.degrees(tilt_angle(q))), float(np.linalg.norm(v)), float(np.linalg.norm(w)), pos
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_family_settles_upright_in_pybullet(family, tmp_path):
+    rng = np.random.default_rng(zlib_crc(family))
+    shape = make_procedural(family, int(rng.integers(0, 1000)))
+    sim, tilt, v, w, pos = _settle(shape, scale=rng.uniform(0.6, 1.4, 3), cache=tmp_path)
+    try:
+        assert tilt < 0.5 and v < 1e-3 and w < 0.02, (shape.name, tilt, v, w)
+        # Resting on the plane (Bullet's ~1 mm margin), where it was spawned.
+        lo, _ = sim.aabb()
+        assert 0.0 < lo[2] < 0.003 and np.linalg.norm(pos[:2]) < 1e-3
+        pieces = sim.client.getCollisionShapeData(sim.body, -1)
+        assert len(pieces) == (1 if shape.convex else len(shape.parts))  # a compound of the shape's own pieces
+    finally:
+        sim.close()
+
+
+def zlib_crc(text: str) -> int:
+    import zlib
+
+    return zlib.crc32(text.encode())
+
+
+def test_parts_collision_is_the_solid_not_its_hull(tmp_path):
+    """A ring collides as its segments: a ray through the hole passes (through the hull it would not); with
+    collision="parts" a shape without parts (a mug) uses its hull, no V-HACD."""
+    ring = make_procedural("ring", 0)
+    for collision, hits in (("auto", False), ("parts", False), ("hull", True)):
+        sim, *_ = _settle(ring, collision=collision, cache=tmp_path / collision)
+        try:
+            pos, *_ = sim.state()
+            top = sim.aabb()[1][2]
+            hit = sim.ray_test(np.array([pos[0], pos[1], top + 0.1]), np.array([pos[0], pos[1], -0.01]))
+            assert (hit is not None) == hits, collision
+        finally:
+            sim.close()
+    sim, tilt, *_ = _settle(make_procedural("mug", 0), collision="parts", cache=tmp_path / "mug")
+    sim.close()
+    assert tilt < 0.5 and not list((tmp_path / "mug").glob("*.obj"))

@@ -116,9 +116,9 @@ def _capsule(rng: np.random.Generator) -> _Built:
     # Hull of 2-4 spheres: pills / capsules, lozenges, rounded triangles and rectangles lying flat (squashed
     # vertically), or a capsule standing on a flattened end.
     kind = str(rng.choice(["capsule", "lozenge", "triangle", "rectangle", "upright"], p=[.3, .2, .15, .15, .2]))
-    r = _logu(rng, 0.015, 0.06)
+    r = _logu(rng, 0.018, 0.06)
     if kind == "upright":
-        length = min(rng.uniform(0.5, 4.0) * r, 0.36 - 2 * r)
+        length = min(rng.uniform(1.0, 4.0) * r, 0.36 - 2 * r)
         centres = np.array([[0, 0, -length / 2], [0, 0, length / 2]])
         squash = 1.0
     else:
@@ -133,7 +133,7 @@ def _capsule(rng: np.random.Generator) -> _Built:
             centres = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(3)]) * span / 2
         else:
             centres = np.array([[x, y, 0] for x in (-span / 2, span / 2) for y in (-span2 / 2, span2 / 2)])
-        squash = rng.uniform(0.35, 1.0)
+        squash = rng.uniform(0.45, 1.0)
     ball = ellipsoid_points((r, r, r), 10, 20)
     pts = np.vstack([ball + c for c in centres])
     pts[:, 2] *= squash

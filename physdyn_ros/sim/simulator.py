@@ -16,8 +16,9 @@ Physics choices (all in `SimConfig`, so they are recorded in every dataset manif
   compound of convex hulls: the shape's own convex pieces when it is built of them (`Shape.parts`: the
   families of shapes/families.py; exact and fast) or else a V-HACD convex decomposition (cached on disk; mug,
   trashcan, non-convex user meshes), both read by Bullet from one OBJ file with one object per piece;
-  `collision="hull"`
-  uses the hull for everything (exact for a lone object on a plane: only hull points can touch a plane).
+  `collision="parts"` uses the pieces where a shape has them and the hull for every other shape (no V-HACD);
+  `collision="hull"` uses the hull for everything (exact for a lone object on a plane: only hull points can
+  touch a plane; only where the push ray meets the object differs, in the gaps of concave shapes).
   Bullet keeps a ~1 mm collision margin around hulls, so a resting object sits ~1 mm above the plane.
 * Mass and inertia come from the true (scaled) geometry at a constant density. The inertia tensor of shapes
   that are not symmetric about their axes (a mug with its handle, tapered speakers) is not diagonal in the
@@ -57,7 +58,7 @@ class SimConfig:
     angular_damping: float = 0.0
     density: float = DEFAULT_DENSITY  # kg/m^3, same for every object
     solver_iterations: int = 50  # pybullet's default, written down so datasets record it
-    collision: str = "auto"  # "auto": hull if shape.convex else V-HACD; "hull": always the convex hull
+    collision: str = "auto"  # "auto": hull if convex, else parts or V-HACD; "parts": no V-HACD; "hull": hull only
     vhacd_resolution: int = 200_000  # voxels of the V-HACD decomposition
     vhacd_cache_dir: str | None = None  # None: $PHYSDYN_CACHE or ~/.cache/physdyn_ros, + /vhacd
     spawn_clearance: float = 0.002  # m above the plane at spawn, then the object settles
@@ -69,8 +70,8 @@ class SimConfig:
     def __post_init__(self) -> None:
         if self.physics_hz < 240 or self.physics_hz % 15:
             raise ValueError(f"physics_hz must be a multiple of 15 and >= 240, got {self.physics_hz}")
-        if self.collision not in ("auto", "hull"):
-            raise ValueError(f"collision must be 'auto' or 'hull', got {self.collision!r}")
+        if self.collision not in ("auto", "parts", "hull"):
+            raise ValueError(f"collision must be 'auto', 'parts' or 'hull', got {self.collision!r}")
         if not 0 <= self.friction <= 10 or self.plane_friction <= 0:
             raise ValueError(f"friction must be in [0, 10], got {self.friction}")
         if self.density <= 0 or self.rest_frames < 1:
@@ -299,7 +300,8 @@ class Simulator:
     # -- object ----------------------------------------------------------------------------------------------
     def _collision_shape(self, shape: Shape, scale: np.ndarray) -> int:
         c, p = self.client, self._p
-        if shape.convex or self.config.collision == "hull":
+        mode = self.config.collision
+        if shape.convex or mode == "hull" or (mode == "parts" and not shape.parts):
             hv, _ = shape.hull()
             return c.createCollisionShape(p.GEOM_MESH, vertices=hv.tolist(), meshScale=scale.tolist())
         path = convex_decomposition(shape, self.config)
