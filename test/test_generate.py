@@ -233,3 +233,51 @@ def test_splits_are_object_level():
         make_splits(shapes, leave_out=["chair"])
     with pytest.raises(ValueError, match="both"):
         check_disjoint({"train": ["a"], "test": ["a"]})
+
+
+def test_broad_config_resolves():
+    """config/generate_broad.yaml: every category (the paper's six and the families), thousands of shapes,
+    whole families held out, the parts collision and thin-object scale limits."""
+    from physdyn_ros.shapes import ALL_CATEGORIES, FAMILIES, HELD_OUT_FAMILIES
+
+    p = params(config="generate_broad")
+    assert p["categories"] == list(ALL_CATEGORIES)
+    assert len(p["categories"]) * p["shapes_per_category"] >= 3000
+    assert set(p["leave_out"]) == set(HELD_OUT_FAMILIES) and set(p["leave_out"]) <= set(FAMILIES)
+    assert p["sim"]["collision"] == "parts" and p["push"]["size_limits"] == [0.015, 0.45]
+    assert gen.test_groups(p)["held_out"] == [c for c in ALL_CATEGORIES if c in HELD_OUT_FAMILIES]
+
+
+def test_generate_new_families_with_held_out_family(tmp_path, capsys):
+    """A tiny dataset over new families: convex pieces collide without V-HACD, the held-out family is entirely in
+    test and reported apart (manifest test_groups and counts, the command's summary)."""
+    out = tmp_path / "ds"
+    argv = ["generate", str(out), "--config", "generate_tiny", "--categories", "ring,composite,prism,box",
+            "--shapes-per-category", "3", "--num-sims", "12", "--shard-size", "6", "--leave-out", "ring",
+            "--test-fraction", "0.34", "--workers", "1", "--no-progress"]
+    assert cli_main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "test, held out: 3 shapes, 3 simulations (ring)" in printed
+    ds = Dataset(out)
+    m = ds.manifest
+    assert m["test_groups"] == {"in_category": ["composite", "prism", "box"], "held_out": ["ring"], "test_only": []}
+    cats = {s["id"]: s["category"] for s in ds.shapes}
+    rings = {i for i, c in cats.items() if c == "ring"}
+    assert rings == {i for i in ds.splits["test"] if cats[i] == "ring"} and len(rings) == 3
+    assert not rings & (set(ds.splits["train"]) | set(ds.splits["val"]))
+    g = m["counts"]["test_groups"]
+    assert g["held_out"] == {"categories": ["ring"], "shapes": 3, "sims": 3}
+    assert g["in_category"]["shapes"] == 3 and g["in_category"]["sims"] == 3
+    assert g["in_category"]["shapes"] + g["held_out"]["shapes"] == m["counts"]["splits"]["test"]["shapes"]
+    assert {s["category"]: s["convex"] for s in ds.shapes} == {"ring": False, "composite": False, "prism": True,
+                                                                 "box": True}
+    data = ds.load()
+    assert len(ds) == 12 and np.all(np.isfinite(data["pos"])) and np.all(data["mass"] > 0)
+    # The clouds are the families' shapes, centred at the centre of mass.
+    from physdyn_ros.shapes import make_procedural
+
+    row = next(s["index"] for s in ds.shapes if s["id"] == "ring_0001")
+    np.testing.assert_array_equal(ds.points[row], make_procedural("ring", 1, 0).points)
+    # Pieces are written once each into the cache (milliseconds), no V-HACD.
+    cache = Path(os.environ["PHYSDYN_CACHE"]) / "vhacd"
+    assert len([f for f in cache.glob("*.obj") if f.read_text().startswith("o part_0")]) == 6
