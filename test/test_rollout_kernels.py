@@ -36,7 +36,8 @@ def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=Non
         w_x = fast["w_x"]
         const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])
         return model_module._lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
-                                          fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
+                                          fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps),
+                                          x0.new_zeros(0, 2), fast["in"], fast["out"])
 
 
 def close(new: torch.Tensor, ref: torch.Tensor, rel: float = REL) -> bool:

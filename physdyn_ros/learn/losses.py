@@ -48,6 +48,8 @@ class LossConfig:
     # increments. A relative loss gives a fast object's large increment a gradient ~1/||x|| as small as a
     # resting one's is large, so the few steps that carry most of a hard push's travel are under-weighted.
     w_abs: float = 0.0
+    # Models with a centre-of-mass head (model.com_head): w_com * the L2 error of the estimate in cloud-scale units.
+    w_com: float = 1.0
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "LossConfig":
@@ -55,7 +57,7 @@ class LossConfig:
         cfg = cls(**{k: (str(v) if k == "relative_to" else float(v)) for k, v in data.items()})
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")
-        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs) < 0:
+        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs, cfg.w_com) < 0:
             raise ValueError("loss.eps must be > 0 and the loss weights >= 0")
         return cfg
 

@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..conventions import GRAVITY
+from .prior import MIN_RADIUS, prior_raw, prior_raw_np
 from .sections import known_keys
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
@@ -35,6 +37,11 @@ CELLS = ("lstm", "mlp")
 #: the L2 cache; larger batches run block after block.
 KERNEL_ROWS = 256
 NORMS = ("batch", "layer", "none")
+PRIORS = ("none", "sliding")
+#: Cloud descriptors appended to the shape feature (model.geometry), in units of the cloud scale, from the cloud in
+#: C centred at its centroid: RMS horizontal radius (spin friction's lever arm), height, height of the centroid
+#: over the lowest point, largest horizontal radius.
+GEOMETRY = ("radius", "height", "centroid_height", "reach")
 
 
 @dataclass
@@ -61,6 +68,16 @@ class ModelConfig:
     # 1.2-2 m/s pushes that slid 27.4 cm, even with the true velocities fed (bench/speed_bins.py). The paper has
     # no such path; model_paper.yaml keeps it off.
     input_skip: bool = False
+    # Physically meaningful inputs computed from the cloud (GEOMETRY: lever arm, height, centroid height, reach),
+    # appended to the learned shape feature: what decides sliding and toppling, and exact for any shape family.
+    geometry: bool = False
+    # "sliding": the outputs are a residual on Coulomb sliding (learn/prior.py; needs geometry for the lever
+    # arm), with friction prior_friction. Zero residual at start = the analytic sliding baseline.
+    prior: str = "none"
+    prior_friction: float = 0.5
+    # A head that estimates the centre of mass from the cloud (relative to its centroid, in C): the start of a
+    # roll-out when only one side of the object is seen.
+    com_head: bool = False
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 
     def __post_init__(self) -> None:
@@ -74,6 +91,12 @@ class ModelConfig:
             raise ValueError(f"model.mlp_activation must be tanh or relu, got {self.mlp_activation!r}")
         if not self.pointnet or not self.shape_mlp or min(self.pointnet + self.shape_mlp) < 1:
             raise ValueError("model.pointnet and model.shape_mlp need at least one positive width each")
+        if self.prior not in PRIORS:
+            raise ValueError(f"model.prior must be one of {PRIORS}, got {self.prior!r}")
+        if self.prior == "sliding" and not self.geometry:
+            raise ValueError("model.prior sliding needs model.geometry: true (the lever arm of spin friction)")
+        if not 0.0 < float(self.prior_friction) <= 2.0:
+            raise ValueError(f"model.prior_friction must be in (0, 2], got {self.prior_friction}")
         for key in ("num_points", "hidden_size", "num_layers", "mlp_layers", "max_horizon"):
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.{key} must be >= 1, got {getattr(self, key)}")
@@ -122,7 +145,7 @@ def _reorder_gates(w: Tensor) -> Tensor:
 
 def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], w_h: List[Tensor],
                   bias: List[Tensor], w_out: Tensor, b_out: Tensor, w_skip: Tensor, gain: Tensor,
-                  steps: int) -> Tuple[Tensor, Tensor]:
+                  steps: int, prior: Tensor, scale_in: Tensor, scale_out: Tensor) -> Tuple[Tensor, Tensor]:
     """Closed-loop LSTM roll-out, compiled by TorchScript: ~25 tensor ops per step and no Python in the loop.
 
     The differentiable kernel (training with feedback, gradient-based planning: autograd on). Without autograd
@@ -132,6 +155,8 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
     used instead of the model's own. const0 (B, 4H): layer-0 bias plus the (constant) shape-feature term.
     Weights are transposed with gates ordered (i, f, o, g). w_skip (6, 13) maps the step's input to the outputs
     (input_skip), or is empty (0, 13) without one. gain (6,): normalised output -> input increment.
+    prior (B, 2): (mu g, mu g / r) of the sliding prior added to the outputs (learn/prior.py), or empty (0, 2);
+    scale_in (6,), scale_out (13,): the normalisation the prior needs.
     Returns raw outputs (B, steps, 13) and the inputs actually used (B, steps + 1, 6).
     """
     batch = x0.shape[0]
@@ -157,6 +182,9 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
         y = torch.addmm(b_out, inp, w_out)
         if w_skip.shape[0] > 0:
             y = torch.addmm(y, x, w_skip)
+        if prior.shape[0] > 0:
+            p = prior_raw(x, prior[:, 0], prior[:, 1], scale_in, scale_out)
+            y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
         outs.append(y)
         if t < x_obs.shape[1]:
             x = x_obs[:, t]
@@ -167,7 +195,8 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
 
 
 def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tensor], b: List[Tensor], w_head: Tensor,
-                        b_head: Tensor, gain: Tensor, steps: int) -> Tuple[Tensor, Tensor]:
+                        b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
+                        scale_out: Tensor) -> Tuple[Tensor, Tensor]:
     """Inference roll-out (no autograd): the same function as _lstm_rollout in fewer, allocation-free operations.
 
     One matrix product per layer and step: a row buffer z = [x, h_0, ..., h_{L-1}] (B, 6 + L H) holds the step's
@@ -223,6 +252,8 @@ def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tenso
             torch.addcmul(s_o, s_o, sc, value=-2.0, out=hs[layer])
         y = ys[:, t]
         torch.addmm(b_head, z, w_head, out=y)
+        if prior.shape[0] > 0:  # the sliding prior (model.prior), as in _lstm_rollout
+            y[:, :12].add_(prior_raw(x, prior[:, 0], prior[:, 1], scale_in, scale_out))
         if t < observed:
             x.copy_(x_obs[:, t])
         else:
@@ -232,7 +263,7 @@ def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tenso
 
 
 def _numpy_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, w0: np.ndarray, w: List[np.ndarray], w_head: np.ndarray,
-                        steps: int) -> Tuple[np.ndarray, np.ndarray]:
+                        steps: int, prior: Optional[tuple] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Batch-1 roll-out in numpy: the latency path (torch dispatch costs more than the arithmetic at batch 1, and
     its matrix-vector products are ~2x slower than numpy's BLAS on these sizes).
 
@@ -278,6 +309,11 @@ def _numpy_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, w0: np.ndarray, w: Li
             mul(u_o, tc, out=h)  # 2 o tanh(c)
         row = rows[t]
         dot(z, w_head, out=row)
+        if prior is not None:  # the sliding prior: on the outputs and, through the gain, on the next input
+            decel, spin, scale_in, scale_out, gain = prior
+            p = np.asarray(prior_raw_np(x, decel, spin, scale_in, scale_out), np.float32)
+            row[:12] += p
+            row[OUT_DIM:] += gain * p[:6]
         if t < observed:
             row[OUT_DIM:] = x_obs[t]
         copyto(x, row[OUT_DIM:])
@@ -318,7 +354,8 @@ class DynamicsModel(nn.Module):
         self.shape_mlp = nn.Sequential(*[
             _Block(a, b, cfg, activation=(i < n - 1 or cfg.shape_final_activation))
             for i, (a, b) in enumerate(zip(mlp[:-1], mlp[1:]))])
-        self.feature_dim = cfg.shape_mlp[-1]
+        self.learned_dim = cfg.shape_mlp[-1]
+        self.feature_dim = self.learned_dim + (len(GEOMETRY) if cfg.geometry else 0)
         in_dim = 6 + self.feature_dim
         if cfg.cell == "lstm":
             self.lstm = nn.LSTM(in_dim, cfg.hidden_size, cfg.num_layers, batch_first=True)
@@ -331,6 +368,7 @@ class DynamicsModel(nn.Module):
                 layers += [nn.Linear(a, b), act()]
             self.mlp = nn.Sequential(*layers, nn.Linear(dims[-1], OUT_DIM))
         self.skip = nn.Linear(6, OUT_DIM, bias=False) if cfg.input_skip else None
+        self.com = nn.Linear(self.feature_dim, 3) if cfg.com_head else None
         self.register_buffer("scales", torch.ones(len(STAT_KEYS)))
         self._reset_parameters()
         if stats is not None:
@@ -353,6 +391,10 @@ class DynamicsModel(nn.Module):
                 getattr(self.lstm, f"bias_ih_l{layer}").data[h:2 * h] = self.cfg.forget_bias
         if self.skip is not None:
             nn.init.zeros_(self.skip.weight)  # start as the paper's network; the path grows where it helps
+        if self.cfg.prior != "none":
+            # a zero residual: the untrained network is exactly the prior (the motion part; topple logit 0)
+            last = self.head if self.cfg.cell == "lstm" else self.mlp[-1]
+            nn.init.zeros_(last.weight)
 
     def set_normalization(self, stats: dict[str, float]) -> None:
         missing = [k for k in STAT_KEYS if k not in stats]
@@ -463,14 +505,34 @@ class DynamicsModel(nn.Module):
         head_np[:6, OUT_DIM:] += torch.eye(6)
         kernel.update(np_w0=w0, np_w=w_np, np_head=np.ascontiguousarray(head_np.numpy()),
                       np_w_feature=gates(w_x[0][6:]), np_b0=gates(bias[0]),
-                      np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32))
+                      np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32),
+                      np_gain=fast["gain"].numpy().astype(np.float32))
         return kernel
 
     # --------------------------------------------------------------------------------------------- pieces
     def encode(self, cloud: Tensor) -> Tensor:
         """Shape feature (B, F) of clouds (B, P, 3) in frame C, metres, centred at their centroid."""
-        x = self.pointnet(cloud / self._scale("cloud"))
-        return self.shape_mlp(x.max(dim=1).values)
+        scaled = cloud / self._scale("cloud")
+        feature = self.shape_mlp(self.pointnet(scaled).max(dim=1).values)
+        if not self.cfg.geometry:
+            return feature
+        r2 = (scaled[..., :2] * scaled[..., :2]).sum(-1)
+        z = scaled[..., 2]
+        zmin = z.min(dim=1).values
+        geometry = torch.stack([r2.mean(1).sqrt(), z.max(dim=1).values - zmin, -zmin, r2.max(dim=1).values.sqrt()], -1)
+        return torch.cat([feature, geometry], -1)
+
+    def com_offset(self, feature: Tensor) -> Tensor:
+        """Estimated centre of mass relative to the cloud's centroid (B, 3), metres in C (needs model.com_head)."""
+        if self.com is None:
+            raise ValueError("this model has no centre-of-mass head (model.com_head)")
+        return self.com(feature) * self._scale("cloud")
+
+    def _prior_decel(self, feature: Tensor) -> Tuple[Tensor, Tensor]:
+        """(mu g, mu g / r) per object of the sliding prior, r from the feature's geometry (model.prior)."""
+        radius = (feature[:, self.learned_dim] * self._scale("cloud")).clamp_min(MIN_RADIUS)
+        decel = torch.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
+        return decel, decel / radius
 
     def _inputs(self, vel: Tensor, angvel: Tensor, fast: Optional[dict[str, Any]] = None) -> Tensor:
         scale = (fast or self._scale_vectors())["in"]
@@ -488,10 +550,17 @@ class DynamicsModel(nn.Module):
 
     def teacher_forced(self, feature: Tensor, vel: Tensor, angvel: Tensor) -> Tensor:
         """Raw outputs (B, T, 13) with the given (ground-truth) velocities (B, T, 3) fed at every step."""
+        scales = self._scale_vectors()
         x = self._inputs(vel, angvel)
         x = torch.cat([x, feature[:, None, :].expand(-1, x.shape[1], -1)], -1)
         y = self.head(self.lstm(x)[0]) if self.cfg.cell == "lstm" else self.mlp(x)
-        return y if self.skip is None else y + self.skip(x[..., :6])
+        if self.skip is not None:
+            y = y + self.skip(x[..., :6])
+        if self.cfg.prior == "sliding":
+            decel, spin = self._prior_decel(feature)
+            p = prior_raw(x[..., :6], decel[:, None], spin[:, None], scales["in"], scales["out"])
+            y = y + torch.cat([p, torch.zeros_like(p[..., :1])], -1)
+        return y
 
     def rollout_raw(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                     obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
@@ -509,22 +578,29 @@ class DynamicsModel(nn.Module):
             x_obs = x0.new_zeros(x0.shape[0], 0, 6)
         else:
             x_obs = self._inputs(obs_vel, obs_angvel, fast)[:, :steps]
+        prior = (torch.stack(self._prior_decel(feature), -1) if self.cfg.prior == "sliding"
+                 else x0.new_zeros(0, 2))
         if self.cfg.cell == "lstm":
             if torch.is_grad_enabled():  # training / gradients: the differentiable kernel
                 w_x = fast["w_x"]
                 const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])  # the feature term is constant in time
                 return _lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
-                                     fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps))
+                                     fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps),
+                                     prior, fast["in"], fast["out"])
             kernel = self._kernel(fast)
             if x0.shape[0] == 1 and "np_w0" in kernel and x0.device.type == "cpu" and x0.dtype == torch.float32:
-                raw, xs = self._numpy_kernel(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(), int(steps))
+                raw, xs = self._numpy_kernel(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(), int(steps),
+                                             prior.numpy())
                 return torch.from_numpy(raw)[None], torch.from_numpy(xs)[None]
-            return self._fused_kernel(kernel, feature, x0, x_obs, int(steps))
+            return self._fused_kernel(kernel, feature, x0, x_obs, int(steps), prior, fast)
         x, outs, xs = x0, [], [x0]
         for t in range(steps):  # the MLP baseline is not latency critical
             y = self.mlp(torch.cat([x, feature], -1))
             if self.skip is not None:
                 y = y + self.skip(x)
+            if prior.shape[0] > 0:
+                p = prior_raw(x, prior[:, 0], prior[:, 1], fast["in"], fast["out"])
+                y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
             outs.append(y)
             x = x_obs[:, t] if t < x_obs.shape[1] else x + y[:, :6] * fast["gain"]
             xs.append(x)
@@ -532,19 +608,28 @@ class DynamicsModel(nn.Module):
 
     @staticmethod
     def _numpy_kernel(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarray,
-                      steps: int) -> Tuple[np.ndarray, np.ndarray]:
-        """Batch 1: feature (1, F), x0 (6,), x_obs (K, 6) float32 -> raw (steps, 13), inputs used (steps + 1, 6)."""
+                      steps: int, prior: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
+        """Batch 1: feature (1, F), x0 (6,), x_obs (K, 6) float32 -> raw (steps, 13), inputs used (steps + 1, 6).
+        prior: (1, 2) (mu g, mu g / r) of the sliding prior, or None / empty."""
         w0 = kernel["np_w0"].copy()  # a private copy: the layer-0 bias row carries this object's feature term
         w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
-        return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps)
+        args = None
+        if prior is not None and len(prior):
+            args = (float(prior[0, 0]), float(prior[0, 1]), kernel["np_in"].tolist(), kernel["np_out"].tolist(),
+                    kernel["np_gain"])
+        return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps, args)
 
     def _fused_kernel(self, kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor,
-                      steps: int) -> Tuple[Tensor, Tensor]:
+                      steps: int, prior: Optional[Tensor] = None,
+                      fast: Optional[dict[str, Any]] = None) -> Tuple[Tensor, Tensor]:
         """_fused_lstm_rollout over blocks of KERNEL_ROWS rows (the block's gate buffers stay in the L2 cache)."""
         const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])
         rows = KERNEL_ROWS if x0.device.type == "cpu" else x0.shape[0]
+        fast = fast or self._fast()
+        prior = x0.new_zeros(0, 2) if prior is None else prior
         parts = [_fused_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], const0[i:i + rows], kernel["w"], kernel["b"],
-                                     kernel["head"], kernel["b_head"], kernel["gain"], steps)
+                                     kernel["head"], kernel["b_head"], kernel["gain"], steps,
+                                     prior[i:i + rows] if prior.shape[0] else prior, fast["in"], fast["out"])
                  for i in range(0, x0.shape[0], rows)]
         if len(parts) == 1:
             return parts[0]
@@ -565,7 +650,12 @@ class DynamicsModel(nn.Module):
                     x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
                     x_obs = (np.zeros((0, 6), np.float32) if obs_vel is None else
                              (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps])
-                    raw, xs = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps))
+                    prior = None
+                    if self.cfg.prior == "sliding":
+                        prior = torch.stack(self._prior_decel(torch.from_numpy(np.asarray(feature, np.float32))),
+                                            -1).numpy()
+                    raw, xs = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps),
+                                                 prior)
                     return raw[None], xs[None], {"in": scale_in, "out": kernel["np_out"]}
             device = fast["in"].device
             tensor = lambda a: None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
@@ -593,8 +683,21 @@ class DynamicsModel(nn.Module):
         """
         feature = self.encode(cloud)
         if not feedback:
-            return self.teacher_forced(feature, vel[:, :-1], angvel[:, :-1])
-        return self.rollout_raw(feature, vel[:, 0], angvel[:, 0], vel.shape[1] - 1)[0]
+            raw = self.teacher_forced(feature, vel[:, :-1], angvel[:, :-1])
+        else:
+            raw = self.rollout_raw(feature, vel[:, 0], angvel[:, 0], vel.shape[1] - 1)[0]
+        # the centre-of-mass estimate (model.com_head) rides along as 3 extra columns of step 0, in cloud-scale
+        # units (DDP needs every output a tensor): split them off with split_com()
+        if self.com is None:
+            return raw
+        com = self.com(feature)
+        return torch.cat([raw, torch.cat([com, com.new_zeros(com.shape[0], raw.shape[-1] - 3)], 1)[:, None]], 1)
+
+    def split_com(self, out: Tensor) -> Tuple[Tensor, Optional[Tensor]]:
+        """forward's output -> (raw outputs (B, T-1, 13), COM estimate (B, 3) in cloud-scale units or None)."""
+        if self.com is None:
+            return out, None
+        return out[:, :-1], out[:, -1, :3]
 
 
 def count_parameters(model: nn.Module) -> dict[str, int]:

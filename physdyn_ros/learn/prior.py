@@ -13,6 +13,7 @@ So a network whose residual is zero (the zero-initialised head) starts as the an
 """
 from __future__ import annotations
 
+import math
 from typing import Tuple
 
 import torch
@@ -22,6 +23,8 @@ from ..conventions import DT, GRAVITY
 
 #: Smallest lever arm (m) for the spin deceleration: a needle-thin cloud must not stop spinning at once.
 MIN_RADIUS = 0.01
+#: m/s, regularises |v| at zero (a 1 micron/s error, far below anything measured).
+SPEED_EPS = 1e-6
 
 
 def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
@@ -30,8 +33,9 @@ def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
     (...,) = mu g / r (rad/s^2). Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
     a = decel[..., None]
     vxy = vel[..., :2]
-    speed = torch.linalg.vector_norm(vxy, dim=-1, keepdim=True)
-    direction = vxy / speed.clamp_min(1e-9)
+    # + SPEED_EPS^2 under the root: a finite gradient at rest (windows end in rest frames with v = 0 exactly)
+    speed = torch.sqrt((vxy * vxy).sum(-1, keepdim=True) + 1e-12)  # 1e-12 = SPEED_EPS ** 2 (TorchScript: a literal)
+    direction = vxy / speed
     t_slide = torch.minimum(speed / a.clamp_min(1e-9), torch.full_like(speed, dt))
     dist = speed * t_slide - 0.5 * a * t_slide * t_slide
     zeros1 = torch.zeros_like(speed)
@@ -58,3 +62,33 @@ def decelerations(cloud_c: Tensor, friction: float) -> Tuple[Tensor, Tensor]:
     radius = torch.sqrt((xy * xy).sum(-1).mean(-1)).clamp_min(MIN_RADIUS)
     decel = torch.full_like(radius, float(friction) * GRAVITY)
     return decel, decel / radius
+
+
+def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, scale_in: Tensor, scale_out: Tensor,
+              dt: float = DT) -> Tensor:
+    """The prior in the network's normalised spaces: inputs x (..., 6) -> outputs (..., 12) (raw columns 0:12)."""
+    v = x[..., :3] * scale_in[:3]
+    w = x[..., 3:6] * scale_in[3:6]
+    d_vel, d_angvel, d_pos, d_rot = sliding_step(v, w, decel, spin_decel, dt)
+    return torch.cat([d_vel, d_angvel, d_pos, d_rot], -1) / scale_out[:12]
+
+
+def prior_raw_np(x, decel: float, spin_decel: float, scale_in, scale_out, dt: float = DT) -> list:
+    """prior_raw for one input row (6 numbers), in plain Python floats: the batch-1 numpy kernel calls it every
+    step, where a dozen numpy calls on 3-vectors would cost more than the LSTM itself."""
+    vx, vy = float(x[0]) * float(scale_in[0]), float(x[1]) * float(scale_in[1])
+    wz = float(x[5]) * float(scale_in[5])
+    speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
+    out = [0.0] * 12
+    t = min(speed / max(decel, 1e-9), dt)
+    dist = speed * t - 0.5 * decel * t * t
+    new = max(speed - decel * dt, 0.0)
+    ux, uy = vx / speed, vy / speed
+    out[0], out[1] = new * ux - vx, new * uy - vy
+    out[6], out[7] = dist * ux, dist * uy
+    if wz != 0.0:
+        w_abs, sign = abs(wz), math.copysign(1.0, wz)
+        t = min(w_abs / max(spin_decel, 1e-9), dt)
+        out[11] = sign * (w_abs * t - 0.5 * spin_decel * t * t)
+        out[5] = sign * max(w_abs - spin_decel * dt, 0.0) - wz
+    return [o / float(s) for o, s in zip(out, scale_out[:12])]

@@ -237,9 +237,15 @@ def _to(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch
 
 def batch_loss(model: torch.nn.Module, core: DynamicsModel, batch: dict[str, torch.Tensor], loss_cfg: LossConfig,
                feedback: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    raw = model(batch["cloud"], batch["vel"], batch["angvel"], feedback)
+    raw, com = core.split_com(model(batch["cloud"], batch["vel"], batch["angvel"], feedback))
     target = core.normalize_targets(batch["d_vel"], batch["d_angvel"], batch["d_pos"], batch["d_rot"])
-    return dynamics_loss(raw, target, batch["topple"], loss_cfg)
+    total, parts = dynamics_loss(raw, target, batch["topple"], loss_cfg)
+    if com is not None:  # the centre-of-mass head: L2 error in cloud-scale units
+        com_loss = torch.linalg.vector_norm(com - batch["com"] / core.normalization()["cloud"], dim=-1).mean()
+        total = total + loss_cfg.w_com * com_loss
+        parts["com"] = com_loss.detach()
+        parts["total"] = total.detach()
+    return total, parts
 
 
 @torch.no_grad()
