@@ -39,7 +39,9 @@ class ShapeCode:
 
     feature: np.ndarray  # (F,) float32 shape feature
     heading: float  # rad, yaw of frame C in the table frame
-    centroid: np.ndarray  # (3,) m, centroid of the cloud in the table frame (default roll-out start position)
+    # (3,) m, table frame: the default roll-out start, the estimated centre of mass for models with a
+    # centre-of-mass head (model.com_head: a partial view's centroid lies cm off it), else the cloud's centroid
+    centroid: np.ndarray
     half_extents: np.ndarray  # (3,) m, half sizes of the cloud's bounding box in frame C
     num_points: int  # points in the encoded cloud
     model_id: str = ""  # the model that made it (features of different models are not interchangeable)
@@ -226,7 +228,7 @@ class Predictor:
         """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred)."""
         import torch
 
-        from .learn.frames import canonicalize_cloud
+        from .learn.frames import c_to_world, canonicalize_cloud
 
         pts = check_cloud(cloud)
         canon = canonicalize_cloud(pts)
@@ -234,8 +236,13 @@ class Predictor:
         half = 0.5 * (local.max(axis=0) - local.min(axis=0))
         sub = torch.from_numpy(local[self._subset(len(pts))].astype(np.float32))[None].to(self._device)
         with torch.inference_mode():
-            feature = self._model.encode(sub)[0].float().cpu().numpy()
-        return ShapeCode(feature=feature, heading=float(canon.heading), centroid=canon.centroid.copy(),
+            encoded = self._model.encode(sub)
+            feature = encoded[0].float().cpu().numpy()
+            start = canon.centroid.copy()
+            if self._model.com is not None:
+                offset = self._model.com_offset(encoded)[0].double().cpu().numpy()
+                start = start + c_to_world(offset, float(canon.heading))
+        return ShapeCode(feature=feature, heading=float(canon.heading), centroid=start,
                          half_extents=half, num_points=int(len(pts)), model_id=self.model_id)
 
     def _check_code(self, code: ShapeCode) -> None:

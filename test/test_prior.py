@@ -103,3 +103,27 @@ def test_hybrid_model_trains_and_its_com_head_learns(tmp_path):
     hist = [json.loads(ln) for ln in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
     assert len(hist) == 4 and hist[-1]["train_com"] < 0.8 * hist[0]["train_com"], [h["train_com"] for h in hist]
     assert hist[-1]["train_total"] < hist[0]["train_total"]
+
+
+def test_predictor_starts_at_the_estimated_centre_of_mass(tmp_path):
+    """With a centre-of-mass head the default start is centroid + the estimate (turned into the table frame)."""
+    from physdyn_ros.learn.checkpoint import save_checkpoint
+    from physdyn_ros.learn.frames import canonicalize_cloud
+    from physdyn_ros.predictor import Predictor
+
+    model = _hybrid()
+    with torch.no_grad():
+        model.com.weight.zero_()
+        model.com.bias.copy_(torch.tensor([0.25, -0.5, -0.125]))  # cloud-scale units: 2, -4, -1 cm
+    save_checkpoint(tmp_path / "h.pt", model=model, config={"model": model.cfg.to_dict()}, dataset={},
+                    include_rng=False)
+    pred = Predictor.load(tmp_path / "h.pt")
+    cloud = _cloud(1, np.random.default_rng(2)).numpy()[0].astype(np.float64) + (0.3, 0.1, 0.05)
+    code = pred.encode(cloud)
+    canon = canonicalize_cloud(cloud)
+    c, s = np.cos(canon.heading), np.sin(canon.heading)
+    offset = np.array([0.02, -0.04, -0.01])
+    expected = canon.centroid + [c * offset[0] - s * offset[1], s * offset[0] + c * offset[1], offset[2]]
+    np.testing.assert_allclose(code.centroid, expected, atol=1e-6)
+    traj = pred.rollout(code, [0.3, 0.0, 0.0], [0.0, 0.0, 0.0], horizon=5)
+    np.testing.assert_allclose(traj.positions[0], expected, atol=1e-6)
