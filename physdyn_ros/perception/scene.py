@@ -62,7 +62,7 @@ class SceneConfig:
 
     max_points: int = 100_000
     sample_points: int = 2048
-    object_points: int = 256
+    object_points: int = 512
     crop: bool = False
     crop_min: tuple[float, float, float] = (-1.0, -1.0, -0.05)
     crop_max: tuple[float, float, float] = (1.0, 1.0, 1.0)
