@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Latency and throughput of the Predictor against pybullet and the machine's matmul peak, in one run.
 
-    .venv/bin/python bench/bench_predictor.py [--model PATH] [--repeats 200] [--rounds 3] [--batch 1024]
+    .venv/bin/python bench/bench_predictor.py [--model PATH] [--repeats 200] [--rounds 5] [--batch 1024]
 
 Everything that is compared is measured in the same process, interleaved in --rounds rounds (a shared machine's
 load then weighs on both sides of a ratio alike), with torch on one thread:
@@ -9,7 +9,10 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
   planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud.
 * pybullet: physdyn_ros.sim.simulate_from_state re-simulating the same pushes (convex hull of the same clouds, the
   dataset generator's physics settings; pybullet is single-threaded), median ms per push.
-* batched: trajectories per second of rollout_batch at --batch on one thread (the median over rounds), its FLOP/s
+* per-core figures (the batch, the matmul peak, pybullet per core) count the thread's CPU time (time.thread_time):
+  on a shared machine a 0.5 s batch is preempted far more often than a 30 ms matmul, which wall time would count
+  against the batch. Latencies (batch 1, pybullet_push_ms, msg_build_ms) are wall time.
+* batched: trajectories per CPU-second of rollout_batch at --batch on one thread (the median over rounds), its FLOP/s
   (FLOPs of the matrix products per roll-out, from the model's layer sizes: elementwise work not counted) as a
   fraction of the peak, and the same per core against pybullet; also the model's roll-out alone
   (DynamicsModel.rollout_raw: no input checks, frames or integration) as kernel_fraction_of_peak;
@@ -19,11 +22,11 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
 * msg_build_ms: physdyn_ros.ros.trajectory_to_msg of a 60-step trajectory (61 states), p50.
 Goals (issue 13): batch-1 roll-out >= 5x faster than a pybullet push; batched >= 60 % of the fp32 matmul peak and
 >= 60x pybullet per core.
-The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms, b1_speedup_vs_pybullet,
-batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core, matmul_gflops_1thread, batched_gflops_1thread,
-batched_fraction_of_peak, kernel_fraction_of_peak, mflop_per_rollout, msg_build_ms (and batch, horizon, precision,
-threads). A figure that
-could not be measured (no pybullet, no rclpy) is null, never a traceback.
+The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms (wall),
+pybullet_push_cpu_ms, b1_speedup_vs_pybullet, batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core,
+matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak, kernel_fraction_of_peak, mflop_per_rollout,
+msg_build_ms (and batch, horizon, precision, threads). A figure that could not be measured (no pybullet, no rclpy)
+is null, never a traceback.
 Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
 does not depend on the weights.
 """
@@ -118,11 +121,12 @@ class PyBullet:
         self.simulate = simulate_from_state
         self.sim = Simulator(self.config)
 
-    def push(self, c: dict) -> float:
-        t0 = time.perf_counter()
+    def push(self, c: dict) -> tuple[float, float]:
+        """(wall, CPU) seconds of one simulated push."""
+        t0, c0 = time.perf_counter(), time.thread_time()
         self.simulate(c["shape"].points, c["scale"], c["pos"], c["quat"], c["lin_vel"], c["ang_vel"],
                       num_frames=self.horizon + 1, config=self.config, sim=self.sim)
-        return time.perf_counter() - t0
+        return time.perf_counter() - t0, time.thread_time() - c0
 
     def close(self) -> None:
         if self.sim is not None:
@@ -135,7 +139,7 @@ def matmul_peak(dtype: Any) -> float:
 
     a, b = torch.randn(1024, 1024, dtype=dtype), torch.randn(1024, 1024, dtype=dtype)
     a @ b
-    best = min(_timed(lambda: a @ b) for _ in range(3))
+    best = min(_cpu_timed(lambda: a @ b) for _ in range(3))
     return 2 * 1024**3 / best / 1e9
 
 
@@ -143,6 +147,13 @@ def _timed(fn) -> float:
     t0 = time.perf_counter()
     fn()
     return time.perf_counter() - t0
+
+
+def _cpu_timed(fn) -> float:
+    """CPU time of this thread (torch runs on it with one thread): time preempted by other processes excluded."""
+    t0 = time.thread_time()
+    fn()
+    return time.thread_time() - t0
 
 
 def kernel_inputs(pred: Any, shapes: list, v: np.ndarray, w: np.ndarray) -> tuple:
@@ -231,6 +242,7 @@ def main() -> int:
     lat: list[float] = []
     full: list[float] = []
     pyb_times: list[float] = []
+    pyb_cpu: list[float] = []
     batched_rates: list[float] = []
     peaks: list[float] = []
     fractions: list[float] = []
@@ -244,7 +256,9 @@ def main() -> int:
         # pybullet pushes and batch-1 roll-outs alternate, so that both see the same load
         for j in range(pushes):
             if pyb.sim is not None:
-                pyb_times.append(pyb.push(cases[r * pushes + j]))
+                wall, cpu = pyb.push(cases[r * pushes + j])
+                pyb_times.append(wall)
+                pyb_cpu.append(cpu)
             for i in range(j * per_round // pushes, (j + 1) * per_round // pushes):
                 k = (r * per_round + i) % 16
                 lat.append(_timed(lambda: pred.rollout(codes[k], cases[k]["lin_vel"], cases[k]["ang_vel"],
@@ -255,8 +269,8 @@ def main() -> int:
                                                     args.horizon)))
         # the batch between two peak measurements; the round's peak is the better of the two
         peak = matmul_peak(dtype)
-        t = _timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon))
-        t_kernel = _timed(lambda: kernel_rollout(pred, kernel_in, args.horizon))
+        t = _cpu_timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon))
+        t_kernel = _cpu_timed(lambda: kernel_rollout(pred, kernel_in, args.horizon))
         peak = max(peak, matmul_peak(dtype))
         rate = args.batch / t
         peaks.append(peak)
@@ -280,7 +294,7 @@ def main() -> int:
     b1_speedup = pyb_speedup = None
     if pyb_ms is not None:
         b1_speedup = pyb_ms / p50
-        pyb_speedup = rate / (1e3 / pyb_ms)
+        pyb_speedup = rate * float(np.median(pyb_cpu))
         print(f"pybullet (simulate_from_state, convex hull, {pyb.config.physics_hz} Hz, 1 thread): {pyb_ms:.2f} ms "
               f"per push ({1e3 / pyb_ms:.0f} trajectories/s); batch-1 roll-out {b1_speedup:.1f}x faster "
               f"(goal >= 5x: {'met' if b1_speedup >= 5 else 'NOT met'})")
@@ -294,7 +308,7 @@ def main() -> int:
         pred.rollout_batch(shapes, bv, bw, args.horizon)
         t = min(_timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon)) for _ in range(rounds))
         print(f"batched roll-outs, batch {args.batch}, {args.batch_threads} threads: {args.batch / t:.0f} "
-              f"trajectories/s")
+              f"trajectories/s (wall clock)")
         torch.set_num_threads(1)
     traj = pred.rollout(codes[0], cases[0]["lin_vel"], cases[0]["ang_vel"], args.horizon)
     msg = msg_build_samples(traj, max(20, args.repeats // 2))
@@ -307,6 +321,7 @@ def main() -> int:
     r3 = lambda x: None if x is None else round(float(x), 3)  # noqa: E731
     print(json.dumps({
         "rollout_b1_p50_ms": r3(p50), "rollout_b1_p99_ms": r3(p99), "pybullet_push_ms": r3(pyb_ms),
+        "pybullet_push_cpu_ms": r3(pct(pyb_cpu, 50) if pyb_cpu else None),
         "b1_speedup_vs_pybullet": r3(b1_speedup), "batched_traj_per_s_1thread": r3(rate),
         "batched_speedup_vs_pybullet_per_core": r3(pyb_speedup), "matmul_gflops_1thread": r3(peak),
         "batched_gflops_1thread": r3(rate * flops / 1e9), "batched_fraction_of_peak": r3(fraction),
