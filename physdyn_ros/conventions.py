@@ -16,3 +16,8 @@ TOPPLE_ANGLE: float = 0.7853981633974483  # 45 degrees
 TABLE_FRAME: str = "world"
 #: Points in the canonical object cloud fed to the shape encoder.
 NUM_POINTS: int = 1024
+#: The rest rule (simulator, sim node, bag conversion, predictor): an object is at rest once slower than these ...
+REST_LIN_VEL: float = 0.01  # m/s
+REST_ANG_VEL: float = 0.05  # rad/s
+#: ... for this many consecutive 1/15 s frames (the simulator and bags; a prediction rests at its first quiet step).
+REST_FRAMES: int = 4

@@ -127,3 +127,33 @@ def test_predictor_starts_at_the_estimated_centre_of_mass(tmp_path):
     np.testing.assert_allclose(code.centroid, expected, atol=1e-6)
     traj = pred.rollout(code, [0.3, 0.0, 0.0], [0.0, 0.0, 0.0], horizon=5)
     np.testing.assert_allclose(traj.positions[0], expected, atol=1e-6)
+
+
+def test_a_predicted_object_comes_to_rest_exactly(tmp_path):
+    """Issue 11: velocities never reached zero (0.25 m/s at step 60 while the poses had stopped). After the rest
+    rule the velocities are exactly zero from the first quiet state on, and the pose no longer moves."""
+    from physdyn_ros.learn.checkpoint import save_checkpoint
+    from physdyn_ros.predictor import Predictor, settle
+
+    # the rule itself: a fed-back velocity offset after the poses stopped
+    h = 10
+    d_pos = np.zeros((1, h, 3))
+    d_pos[0, :3, 0] = 0.01
+    d_rot = np.zeros((1, h, 3))
+    lin = np.full((1, h + 1, 3), [0.25, 0.0, 0.0])
+    ang = np.zeros((1, h + 1, 3))
+    rest = settle(d_pos, d_rot, lin, ang)
+    assert rest[0] == 4 and np.all(lin[0, 4:] == 0) and np.all(lin[0, :4, 0] == 0.25)
+    assert np.all(d_pos[0, :3, 0] == 0.01) and np.all(d_pos[0, 3:] == 0)
+    # through the Predictor, with a model: a slow push stops and stays stopped
+    model = _hybrid()
+    save_checkpoint(tmp_path / "h.pt", model=model, config={"model": model.cfg.to_dict()}, dataset={},
+                    include_rng=False)
+    pred = Predictor.load(tmp_path / "h.pt")
+    cloud = _cloud(1, np.random.default_rng(3)).numpy()[0].astype(np.float64) + (0.0, 0.0, 0.05)
+    traj = pred.rollout(cloud, [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], horizon=60)
+    stopped = np.flatnonzero(np.all(traj.lin_vels == 0, axis=1) & np.all(traj.ang_vels == 0, axis=1))
+    assert len(stopped) and stopped[0] < 20  # 0.5 m/s at mu 0.5 stops after 0.1 s
+    assert np.all(traj.positions[stopped[0]:] == traj.positions[stopped[0]])
+    slide = np.linalg.norm(traj.positions[-1, :2] - traj.positions[0, :2])
+    assert abs(slide - 0.5 ** 2 / (2 * 0.5 * 9.81)) < 0.002  # Coulomb: v^2 / (2 mu g) = 2.55 cm

@@ -22,17 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from .. import geometry as geo
-from ..conventions import DT, NUM_POINTS
+from ..conventions import DT, NUM_POINTS, REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
 from .reading import open_bag
 from .types import deserialize
 
 NS = 1_000_000_000
 DT_NS = int(round(DT * NS))
-#: Rest test of the simulator (sim.SimConfig defaults; a test keeps them equal): at rest below these speeds ...
-REST_LIN_VEL = 0.01  # m/s
-REST_ANG_VEL = 0.05  # rad/s
-#: ... for this many consecutive frames.
-REST_FRAMES = 4
 
 STATE_TYPES = ("physdyn_ros/msg/ObjectState", "nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
 #: Default topic of each state type, in order of preference.

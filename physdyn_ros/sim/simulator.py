@@ -39,7 +39,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..conventions import DT, GRAVITY
+from ..conventions import DT, GRAVITY, REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
 from ..shapes.core import DEFAULT_DENSITY, Shape
 
 
@@ -63,9 +63,9 @@ class SimConfig:
     vhacd_cache_dir: str | None = None  # None: $PHYSDYN_CACHE or ~/.cache/physdyn_ros, + /vhacd
     spawn_clearance: float = 0.002  # m above the plane at spawn, then the object settles
     settle_time: float = 1.0  # s, at most, to let a spawned object come to rest
-    rest_lin_vel: float = 0.01  # m/s: at rest below this speed ...
-    rest_ang_vel: float = 0.05  # rad/s: ... and below this angular speed ...
-    rest_frames: int = 4  # ... for this many consecutive recorded frames (0.27 s)
+    rest_lin_vel: float = REST_LIN_VEL  # m/s: at rest below this speed ...
+    rest_ang_vel: float = REST_ANG_VEL  # rad/s: ... and below this angular speed ...
+    rest_frames: int = REST_FRAMES  # ... for this many consecutive recorded frames (0.27 s)
 
     def __post_init__(self) -> None:
         if self.physics_hz < 240 or self.physics_hz % 15:
