@@ -28,7 +28,7 @@ from typing import Any, Mapping, Optional, Sequence, Union
 import numpy as np
 
 from . import geometry as geo
-from .conventions import DT, REST_ANG_VEL, REST_LIN_VEL
+from .conventions import DT, REST_ANG_VEL, REST_LIN_VEL, TOPPLE_ANGLE
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -380,7 +380,16 @@ class Predictor:
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)
         orientations = compose_rotations(q0, d_rot)
         prob = np.concatenate([np.zeros((len(raw), 1)), 1.0 / (1.0 + np.exp(-raw[..., 12].astype(np.float64)))], axis=1)
-        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, prob)
+        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations))
+
+
+def consistent_topple(prob: np.ndarray, orientations: np.ndarray) -> np.ndarray:
+    """Per-step topple probabilities (B, H+1) that agree with the predicted poses: a topple cannot be undone (the
+    probability never decreases along a trajectory), and a predicted pose tilted past TOPPLE_ANGLE has toppled
+    (probability 1 from there on)."""
+    x, y = orientations[..., 0], orientations[..., 1]
+    tilted = 1.0 - 2.0 * (x * x + y * y) < np.cos(TOPPLE_ANGLE)  # the up axis' z component (geometry.up_tilt_angle)
+    return np.maximum.accumulate(np.where(tilted, 1.0, prob), axis=1)
 
 
 def settle(d_pos: np.ndarray, d_rot: np.ndarray, lin: np.ndarray, ang: np.ndarray, first: int = 1,

@@ -157,3 +157,18 @@ def test_a_predicted_object_comes_to_rest_exactly(tmp_path):
     assert np.all(traj.positions[stopped[0]:] == traj.positions[stopped[0]])
     slide = np.linalg.norm(traj.positions[-1, :2] - traj.positions[0, :2])
     assert abs(slide - 0.5 ** 2 / (2 * 0.5 * 9.81)) < 0.002  # Coulomb: v^2 / (2 mu g) = 2.55 cm
+
+
+def test_topple_probability_agrees_with_the_predicted_poses():
+    """Issue 11.3: the probability disagreed with the model's own poses. Now it never decreases, and it is 1 once
+    the predicted pose has tilted past 45 degrees."""
+    from scipy.spatial.transform import Rotation
+
+    from physdyn_ros.predictor import consistent_topple
+
+    tilt = np.radians([0, 10, 30, 50, 80, 80])
+    quats = Rotation.from_rotvec(np.column_stack([tilt, 0 * tilt, 0 * tilt])).as_quat()[None]
+    prob = np.array([[0.0, 0.3, 0.1, 0.2, 0.05, 0.0]])
+    assert consistent_topple(prob, quats).tolist() == [[0.0, 0.3, 0.3, 1.0, 1.0, 1.0]]
+    upright = np.tile([0, 0, 0, 1.0], (1, 6, 1))
+    assert consistent_topple(prob, upright).tolist() == [[0.0, 0.3, 0.3, 0.3, 0.3, 0.3]]

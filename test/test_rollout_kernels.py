@@ -150,7 +150,7 @@ def test_kernel_weights_follow_parameter_updates():
 def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     """Predictor._run before issue 13 (without observed states): model.rollout in torch, then frames."""
     from physdyn_ros.learn.frames import c_to_world, integrate_in_world, world_to_c
-    from physdyn_ros.predictor import settle
+    from physdyn_ros.predictor import consistent_topple, settle
 
     h = headings[:, None]
     with torch.inference_mode(False), torch.no_grad():
@@ -168,7 +168,7 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     settle(d_pos, d_rot, lin, ang)  # the rest rule (issue 11) is not part of the speed-up: applied to both
     positions, orientations = integrate_in_world(headings, p0, q0, d_pos, d_rot)
     prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
-    return positions, orientations, lin, ang, prob
+    return positions, orientations, lin, ang, consistent_topple(prob, orientations)  # also not a speed-up
 
 
 def test_predictor_equals_the_previous_predictor(shipped):
