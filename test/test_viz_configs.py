@@ -1,0 +1,43 @@
+"""The shipped RViz config and Foxglove layout parse and show only topics the suite publishes (issue 15.5)."""
+from __future__ import annotations
+
+import ast
+import json
+import re
+
+import yaml
+
+from conftest import ROOT
+
+VIZ = ROOT / "config" / "viz"
+
+
+def published_topics() -> set[str]:
+    """Every topic name the suite's nodes create a publisher for (read from their source)."""
+    names = set()
+    for path in (ROOT / "physdyn_ros" / "nodes").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "create_publisher" \
+                    and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant):
+                names.add("/" + node.args[1].value.lstrip("/"))
+    assert {"/cloud", "/predicted_path", "/predicted_markers", "/diagnostics"} & names, names
+    return names | {"/diagnostics"}  # published through ros/diagnostics.py
+
+
+def test_rviz_config_shows_suite_topics_in_the_table_frame():
+    cfg = yaml.safe_load((VIZ / "physdyn.rviz").read_text())
+    manager = cfg["Visualization Manager"]
+    assert manager["Global Options"]["Fixed Frame"] == "world"
+    topics = {d["Topic"]["Value"] for d in manager["Displays"] if "Topic" in d}
+    assert {"/cloud", "/predicted_path", "/predicted_markers"} <= topics
+    assert topics <= published_topics(), topics - published_topics()
+
+
+def test_foxglove_layout_shows_suite_topics():
+    layout = json.loads((VIZ / "physdyn.foxglove.json").read_text())
+    panels = layout["configById"]
+    assert set(re.findall(r'"((?:3D|Plot|DiagnosticSummary|RawMessages)![a-z]+)"', json.dumps(layout["layout"]))) \
+        == set(panels)
+    topics = set(panels["3D!physdyn"]["topics"]) | {panels["RawMessages!physdyn"]["topicPath"]}
+    topics |= {p["value"].split(".")[0] for p in panels["Plot!physdyn"]["paths"]}
+    assert topics <= published_topics(), topics - published_topics()
