@@ -16,7 +16,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/physdyn_ros"]),
         ("share/physdyn_ros", ["package.xml"]),
-        ("share/physdyn_ros/config", glob("config/*.yaml")),
+        ("share/physdyn_ros/config", glob("config/*.yaml") + glob("config/*.xml")),
+        ("share/physdyn_ros/config/viz", glob("config/viz/*")),
         ("share/physdyn_ros/launch", glob("launch/*.py")),
     ],
     entry_points={
