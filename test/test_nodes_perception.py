@@ -177,10 +177,14 @@ def test_different_bad_clouds_are_each_reported(tiny_model):
         pub = node.create_publisher(PointCloud2, "cloud", 10)
         assert wait_for(lambda: any("ready:" in ln for ln in lines), 60), "".join(lines)[-2000:]
         assert wait_for(lambda: pub.get_subscription_count() > 0, 20)
-        for msg in (xyz_to_cloud(np.zeros((0, 3)), "world"), xyz_to_cloud(box_surface(500), "camera_optical"),
-                    xyz_to_cloud(box_surface(10), "world")):
-            pub.publish(msg)
-            time.sleep(0.75)
+        reasons = ("the cloud is empty", "is not the table frame 'world'", "only 10 points left")
+        for msg, reason in zip((xyz_to_cloud(np.zeros((0, 3)), "world"),
+                                xyz_to_cloud(box_surface(500), "camera_optical"),
+                                xyz_to_cloud(box_surface(10), "world")), reasons):
+            for _ in range(2):  # a best-effort cloud may be lost (a loaded machine): once more, still < 2 s apart
+                pub.publish(msg)
+                if wait_for(lambda: any(reason in ln for ln in lines), 0.6):
+                    break
         assert wait_for(lambda: sum("ignored:" in ln for ln in lines) >= 3, 10), "".join(lines)[-3000:]
     finally:
         node.destroy_node()
@@ -188,7 +192,7 @@ def test_different_bad_clouds_are_each_reported(tiny_model):
         proc.terminate()
         proc.wait(10)
     text = "".join(lines)
-    for reason in ("the cloud is empty", "is not the table frame 'world'", "only 10 points left"):
+    for reason in reasons:
         assert reason in text, text[-3000:]
 
 

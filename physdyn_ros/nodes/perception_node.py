@@ -123,6 +123,7 @@ class PerceptionNode(Node):
         parse_transform(self.get_parameter("sensor_transform").value)  # a bad one stops the node at start
         self.predictor = load_predictor(self, model_path, device, threads)
         self._rng = np.random.default_rng(0)
+        self._warm_up()
         self.tracker = Tracker()
         self.processed = 0  # clouds that gave at least one feature
         self.published = 0  # features
@@ -148,6 +149,17 @@ class PerceptionNode(Node):
             + f", other frames: {frames}; "
             + ("single object" if self.get_parameter("single_object").value else "several objects")
             + f"; model {self.predictor.model_id}")
+
+    def _warm_up(self) -> None:
+        """One synthetic table with objects through segmentation, tracking and encoding before `ready`: the first
+        real cloud otherwise paid for scipy's imports (half a second for scipy.optimize alone)."""
+        from ..perception.synthetic import tabletop_scene
+
+        scene = tabletop_scene(5000, rng=np.random.default_rng(0))
+        found = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(0))
+        Tracker().update([o.centroid for o in found.objects], 0.0)
+        outline_xy(found.objects[0].points)
+        self.predictor.encode(found.objects[0].points)
 
     # ------------------------------------------------------------------------------------------------ settings
     def config(self) -> SceneConfig:
