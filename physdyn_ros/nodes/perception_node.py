@@ -247,8 +247,9 @@ class PerceptionNode(Node):
         for k, (object_id, obj) in enumerate(labelled):
             r, g, b = PALETTE[zlib.crc32(object_id.encode()) % len(PALETTE)]
             colour = ColorRGBA(r=r, g=g, b=b, a=1.0)
+            ring = outline_xy(obj.points)
             line = Marker(header=header, ns="object_outline", id=k, type=Marker.LINE_STRIP, action=Marker.ADD,
-                          color=colour, points=[Point(x=float(x), y=float(y), z=0.0) for x, y in outline_xy(obj.points)])
+                          color=colour, points=[Point(x=float(x), y=float(y), z=0.0) for x, y in ring])
             line.scale.x = 0.004
             line.pose.orientation.w = 1.0
             text = Marker(header=header, ns="object_id", id=k, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,

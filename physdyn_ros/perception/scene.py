@@ -53,7 +53,8 @@ TABLE_FREE_SHARE = 0.1
 #: the cell keys of the clustering within int64 (1e30 garbage values).
 MAX_COORD = 100.0
 #: The 13 neighbour offsets of a cell that come after it (the other 13 are their opposites).
-_HALF_OFFSETS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) > (0, 0, 0)]
+_HALF_OFFSETS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+                 if (dx, dy, dz) > (0, 0, 0)]
 
 
 @dataclass

@@ -4,10 +4,10 @@ Each track keeps the object's last centroid, a velocity estimate and the time it
 (time t, the cloud's stamp in seconds) every track predicts where its object is now (constant velocity); a
 detection's distance to a track is the smaller of its distances to that prediction and to the last centroid (the
 object may have stopped since), and detections are matched to tracks by minimum total distance (Hungarian
-assignment) among pairs closer than `gate`. A matched detection keeps the track's id; an unmatched one starts a new track with a new id
-(`<prefix><n>`, n counting from 1 and never reused by this tracker); a track not matched for more than `timeout`
-seconds is retired, so an object that comes back after that gets a new id. Time going backwards by more than
-`timeout` (a bag played again) clears every track.
+assignment) among pairs closer than `gate`. A matched detection keeps the track's id; an unmatched one starts a new
+track with a new id (`<prefix><n>`, n counting from 1 and never reused by this tracker); a track not matched for
+more than `timeout` seconds is retired, so an object that comes back after that gets a new id. Time going backwards
+by more than `timeout` (a bag played again) clears every track.
 
 Limits: two objects that swap places within one cloud interval, or an object that moves farther than `gate`
 beyond its predicted position between two clouds (a hard push seen at a low cloud rate), get swapped or new ids.
