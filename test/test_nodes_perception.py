@@ -401,3 +401,51 @@ def test_100k_cloud_with_three_objects_within_budget(rclpy_init):
     node.destroy_node()
     assert len(feats) == 3
     assert min(rounds) < 0.025, f"p50 {[round(1e3 * v, 1) for v in rounds]} ms CPU per 100k-point cloud"
+
+
+def test_the_predictor_addresses_any_tracked_object(rclpy_init, tiny_model):
+    """Tracked ids reach the predictor: its service by object_id, and an initial_twist for the object named by its
+    object_id parameter (a twist carries no id; docs/nodes.md, "Targeting an object with the predictor")."""
+    from geometry_msgs.msg import TwistStamped
+
+    from physdyn_ros.msg import PredictedTrajectory
+    from physdyn_ros.nodes.predictor_node import LATCHED, PredictorNode
+    from physdyn_ros.srv import PredictTrajectory
+    from test_nodes_support import call
+
+    scene = tabletop_scene(50_000, rng=np.random.default_rng(11))
+    node = perception(tiny_model, single_object=False, **camera_params(scene))
+    model = Parameter("model_path", value=str(tiny_model))
+    predictor = PredictorNode(parameter_overrides=[model, Parameter("initial_pose_source", value="shape_feature"),
+                                                   Parameter("horizon", value=10)])
+    lis = Listener(rclpy_init, "target_user")
+    trajs: list[PredictedTrajectory] = []
+    lis.node.create_subscription(PredictedTrajectory, "predicted_trajectory", trajs.append, LATCHED)
+    twist_pub = lis.node.create_publisher(TwistStamped, "initial_twist", 10)
+    service = lis.node.create_client(PredictTrajectory, "predict_trajectory")
+    stamp = 100 * 10**9
+    with Spinner(node, predictor, lis.node, threads=6):
+        assert wait_for(lambda: lis.cloud.get_subscription_count() > 0, 10)
+        msg = xyz_to_cloud(scene.points, "camera_optical_frame", ns_to_time(stamp))
+        assert wait_for(lambda: (lis.cloud.publish(msg), len(lis.of(stamp)) >= 3)[1], 20, step=0.5)
+        feats = {f.object_id: f for f in lis.of(stamp)}
+        for oid, f in feats.items():  # the service, by each tracked id
+            req = PredictTrajectory.Request(object_id=oid, horizon=5)
+            req.header.frame_id, req.header.stamp = "world", ns_to_time(stamp)
+            req.initial_pose.position = f.centroid
+            req.initial_twist.linear.x = 0.3
+            answers = []  # the predictor may not have received that feature yet: ask again
+            assert wait_for(lambda: (answers.append(call(service, req)), answers[-1].success)[1], 10, step=0.2), \
+                answers[-1].message
+            assert answers[-1].trajectory.object_id == oid
+        target = sorted(feats)[1]
+        predictor.set_parameters([Parameter("object_id", value=target)])
+        twist = TwistStamped()
+        twist.header.frame_id, twist.header.stamp = "world", ns_to_time(stamp + 10**7)
+        twist.twist.linear.x = 0.3
+        twist_pub.publish(twist)
+        assert wait_for(lambda: trajs, 10), predictor.last_error
+    traj, f = trajs[-1], feats[target]
+    assert traj.object_id == target
+    p = traj.states[0].pose.position
+    assert (p.x, p.y) == pytest.approx((f.centroid.x, f.centroid.y), abs=1e-6)  # started from that object
