@@ -101,12 +101,10 @@ class SimNode(Node):
         self.cloud_frame: str = declare(self, "cloud_frame", "table", "frame of the published cloud: 'table' "
                                         "(table_frame) or 'camera' (camera_frame, the simulated camera's optical "
                                         "frame at camera_eye looking at camera_target; its pose goes to "
-                                        "/tf_static)", read_only=True)
+                                        "/tf_static)", read_only=True, choices=CLOUD_FRAMES)
         self.camera_frame: str = declare(self, "camera_frame", "camera_optical_frame", "name of the camera's "
                                          "optical frame (z forward, x right, y down) for cloud_frame camera",
                                          read_only=True)
-        if self.cloud_frame not in CLOUD_FRAMES:
-            raise ValueError(f"cloud_frame must be one of {list(CLOUD_FRAMES)}, got {self.cloud_frame!r}")
         if self.cloud_frame == "camera" and (not self.camera_frame or self.camera_frame == self.table_frame):
             raise ValueError(f"camera_frame must be a name other than table_frame, got {self.camera_frame!r}")
         declare(self, "max_push_time", 10.0, "s of simulated time after which a push ends even if the object "
