@@ -1,6 +1,7 @@
 """Start the physdyn_ros node suite (sim, perception, predictor) with one params file.
 
     ros2 launch physdyn_ros physdyn.launch.py [params_file:=/path/to/suite.yaml] [use_sim:=false]
+        [namespace:=robot1] [use_sim_time:=true] [log_level:=debug] [dds_profile:=/path/to/profile.xml]
 
 The same nodes, names and params file as `physdyn up` (physdyn_ros/launcher.py); test_ros_launch.py checks that
 the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `initial_twist` and
@@ -25,7 +26,14 @@ def generate_launch_description():
     default_dds_profile = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'fastdds.xml')
     params_file = LaunchConfiguration('params_file')
     dds_profile = LaunchConfiguration('dds_profile')
+    common = dict(namespace=LaunchConfiguration('namespace'), output='screen',
+                  parameters=[params_file, {'use_sim_time': LaunchConfiguration('use_sim_time')}],
+                  ros_arguments=['--log-level', LaunchConfiguration('log_level')])
     return LaunchDescription([
+        DeclareLaunchArgument('namespace', default_value='', description='ROS namespace of every node'),
+        DeclareLaunchArgument('use_sim_time', default_value='false',
+                              description='take time from /clock (the sim publishes it with publish_clock: true)'),
+        DeclareLaunchArgument('log_level', default_value='info', description='debug, info, warn, error or fatal'),
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='node parameters, one section per node (/sim, /perception, /predictor)'),
         DeclareLaunchArgument('use_sim', default_value='true',
@@ -37,10 +45,8 @@ def generate_launch_description():
                         'else config/fastdds.xml: a 16 MB shared-memory segment for dense clouds)'),
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', dds_profile),
         SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', dds_profile),
-        Node(package='physdyn_ros', executable='sim_node', name='sim', parameters=[params_file],
-             output='screen', condition=IfCondition(LaunchConfiguration('use_sim'))),
-        Node(package='physdyn_ros', executable='perception_node', name='perception', parameters=[params_file],
-             output='screen'),
-        Node(package='physdyn_ros', executable='predictor_node', name='predictor', parameters=[params_file],
-             output='screen'),
+        Node(package='physdyn_ros', executable='sim_node', name='sim',
+             condition=IfCondition(LaunchConfiguration('use_sim')), **common),
+        Node(package='physdyn_ros', executable='perception_node', name='perception', **common),
+        Node(package='physdyn_ros', executable='predictor_node', name='predictor', **common),
     ])

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -66,6 +67,12 @@ def dds_profile_env(env: dict[str, str]) -> str | None:
     return path
 
 
+def section(node: str) -> str:
+    """The params-file key of a node: `/**/<name>` matches it in any namespace (`physdyn up --namespace`,
+    the launch file's namespace argument); `/<name>` would match only the root namespace."""
+    return f"/**/{node}"
+
+
 def known_parameters(node: str) -> dict[str, Any]:
     """Name -> default of every parameter `node` declares, from the shipped params file (which lists them all:
     test_ros_launch.py compares it with the running nodes), plus rclpy's own two."""
@@ -73,7 +80,7 @@ def known_parameters(node: str) -> dict[str, Any]:
     params = dict(config["/**"]["ros__parameters"])
     for name in NOT_DECLARED.get(node, ()):
         params.pop(name, None)
-    params.update(config[f"/{node}"]["ros__parameters"])
+    params.update(config[section(node)]["ros__parameters"])
     params.setdefault("use_sim_time", False)  # rclpy's own, on every node
     params.setdefault("start_type_description_service", True)
     return params
@@ -109,15 +116,22 @@ def parse_overrides(node: str, assignments: Sequence[str]) -> dict[str, Any]:
 def write_overrides(node: str, values: dict[str, Any], folder: Path) -> Path:
     """A params file with `values` in `node`'s own section (given after the main one, so it wins)."""
     path = folder / f"{node}_overrides.yaml"
-    path.write_text(yaml.safe_dump({f"/{node}": {"ros__parameters": values}}, default_flow_style=None))
+    path.write_text(yaml.safe_dump({section(node): {"ros__parameters": values}}, default_flow_style=None))
     return path
 
 
+#: launch/physdyn.launch.py's arguments and the `physdyn up` options that do the same (a test keeps them in step).
+LAUNCH_ARGUMENTS = {"params_file": "--config", "use_sim": "--no-sim", "namespace": "--namespace",
+                    "use_sim_time": "--use-sim-time", "log_level": "--log-level", "dds_profile": "--dds-profile"}
+
+
 def node_command(executable: str, params_file: Path, overrides_file: Path | None = None,
-                 log_level: str | None = None) -> list[str]:
+                 log_level: str | None = None, namespace: str = "") -> list[str]:
     cmd = [sys.executable, "-m", f"physdyn_ros.nodes.{executable}", "--ros-args", "--params-file", str(params_file)]
     if overrides_file is not None:
         cmd += ["--params-file", str(overrides_file)]
+    if namespace:
+        cmd += ["-r", f"__ns:={namespace}"]
     if log_level:
         cmd += ["--log-level", log_level]
     return cmd
@@ -159,7 +173,7 @@ class Suite:
 
     def __init__(self, config: Path | None = None, overrides: dict[str, Sequence[str]] | None = None,
                  nodes: Sequence[str] | None = None, log_dir: Path | None = None, log_level: str | None = None,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, namespace: str = "") -> None:
         self.config = Path(config) if config else default_config()
         if not self.config.is_file():
             raise FileNotFoundError(f"params file {self.config} does not exist")
@@ -176,6 +190,9 @@ class Suite:
         self.values = {n: parse_overrides(n, self.overrides[n]) for n, _ in self.nodes if self.overrides.get(n)}
         self._tmp: tempfile.TemporaryDirectory | None = None
         self.log_dir, self.log_level = log_dir, log_level
+        if namespace and not re.fullmatch(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*", namespace):
+            raise ValueError(f"namespace {namespace!r} is not a ROS namespace (letters, digits, _ and /)")
+        self.namespace = ("/" + namespace.lstrip("/")) if namespace else ""
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
         self.env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
@@ -195,7 +212,7 @@ class Suite:
             else:
                 out = sys.stdout
             extra = write_overrides(name, self.values[name], Path(self._tmp.name)) if name in self.values else None
-            cmd = node_command(exe, self.config, extra, self.log_level)
+            cmd = node_command(exe, self.config, extra, self.log_level, self.namespace)
             self.procs.append(NodeProcess(name, cmd, out, self.env))
         return self
 
@@ -258,6 +275,9 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
         o["sim"].append(f"real_time_factor:={float(args.real_time_factor)!r}")
     if args.category:
         o["sim"].append(f"category:={args.category}")
+    if args.use_sim_time:
+        for name in o:
+            o[name].append("use_sim_time:=true")
     for item in args.param or []:
         node, sep, assignment = item.partition(":")
         if not sep or node not in o or ":=" not in assignment:
@@ -278,12 +298,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override one parameter of one node (repeatable)")
     parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log")
     parser.add_argument("--log-level", default=None, choices=["debug", "info", "warn", "error", "fatal"])
+    parser.add_argument("--namespace", default="", help="ROS namespace of every node (and so of their relative "
+                        "topics and services), e.g. robot1")
+    parser.add_argument("--use-sim-time", action="store_true", help="every node takes its time from /clock (the sim "
+                        "publishes it with --param sim:publish_clock:=true)")
+    parser.add_argument("--no-sim", action="store_true", help="do not start the sim node (feed cloud, initial_twist "
+                        "and object_state from your own sensors and tracker)")
+    parser.add_argument("--dds-profile", type=Path, default=None, help="Fast DDS XML profile of the nodes (default: "
+                        "the one set in the environment, else config/fastdds.xml)")
     parser.add_argument("--startup-timeout", type=float, default=180.0, help="s to wait for all nodes to be ready")
 
 
 def run(args: argparse.Namespace) -> int:
-    suite = Suite(args.config, overrides_from_args(args), args.nodes.split(",") if args.nodes else None,
-                  args.log_dir, args.log_level)
+    nodes = args.nodes.split(",") if args.nodes else [n for n, _ in NODES]
+    if args.no_sim:
+        nodes = [n for n in nodes if n != "sim"]
+    env = None
+    if args.dds_profile is not None:
+        if not args.dds_profile.is_file():
+            raise FileNotFoundError(f"--dds-profile {args.dds_profile} does not exist")
+        env = dict(os.environ, **{var: str(args.dds_profile.resolve()) for var in DDS_PROFILE_VARS})
+    suite = Suite(args.config, overrides_from_args(args), nodes, args.log_dir, args.log_level, env, args.namespace)
     stop = threading.Event()
     received: list[int] = []
 

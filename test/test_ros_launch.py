@@ -16,7 +16,7 @@ import yaml
 from rclpy.parameter import Parameter
 
 from conftest import PYTHON, ROOT
-from physdyn_ros.launcher import CONFIG_NAME, NODES, Suite, known_parameters, node_command
+from physdyn_ros.launcher import CONFIG_NAME, LAUNCH_ARGUMENTS, NODES, Suite, known_parameters, node_command
 from test_nodes_support import tiny_model  # noqa: F401 - fixture
 
 LAUNCH = ROOT / "launch" / "physdyn.launch.py"
@@ -44,7 +44,12 @@ def launch_nodes() -> tuple[list[dict], dict[str, object]]:
               for t in n.targets if isinstance(t, ast.Name)}
     nodes, args = [], {}
     for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call)):
-        kw = {k.arg: _value(k.value, consts) for k in call.keywords}
+        kw = {}
+        for k in call.keywords:
+            if k.arg is None and isinstance(k.value, ast.Name):  # **common = dict(...): its keywords
+                kw.update({kk.arg: _value(kk.value, consts) for kk in consts[k.value.id].keywords})
+            else:
+                kw[k.arg] = _value(k.value, consts)
         name = ast.unparse(call.func)
         if name == "Node":
             nodes.append(kw)
@@ -57,8 +62,22 @@ def test_launch_file_starts_what_the_launcher_starts():
     nodes, args = launch_nodes()
     assert [(n["name"], n["executable"]) for n in nodes] == list(NODES)
     assert {n["package"] for n in nodes} == {"physdyn_ros"}
-    # every node gets the same params file, whose default is the installed config/suite.yaml
-    assert all(n["parameters"] == [("LaunchConfiguration", "params_file")] for n in nodes)
+    # every node gets the same params file, whose default is the installed config/suite.yaml, the launch
+    # arguments' use_sim_time, namespace and log level
+    for n in nodes:
+        assert n["parameters"][0] == ("LaunchConfiguration", "params_file"), n
+        assert n["namespace"] == ("LaunchConfiguration", "namespace")
+        assert n["ros_arguments"] == ["--log-level", ("LaunchConfiguration", "log_level")]
+        assert "'use_sim_time': LaunchConfiguration('use_sim_time')" in str(n["parameters"][1])
+    # the launch file's arguments are exactly those `physdyn up` offers (issue 15.4)
+    assert set(args) == set(LAUNCH_ARGUMENTS)
+    import argparse
+
+    from physdyn_ros.launcher import add_arguments
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    options = {o for a in parser._actions for o in a.option_strings}
+    assert set(LAUNCH_ARGUMENTS.values()) <= options
     assert args["params_file"] == ("os.path.join", ("get_package_share_directory", "physdyn_ros"), "config",
                                    CONFIG_NAME)
     cmake = (ROOT / "CMakeLists.txt").read_text()
@@ -121,7 +140,7 @@ def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
     from physdyn_ros.nodes.sim_node import SimNode
 
     config = yaml.safe_load(CONFIG.read_text())
-    assert set(config) == {"/**"} | {f"/{n}" for n, _ in NODES}
+    assert set(config) == {"/**"} | {f"/**/{n}" for n, _ in NODES}
     shared = config["/**"]["ros__parameters"]
     for cls, name in ((SimNode, "sim"), (PerceptionNode, "perception"), (PredictorNode, "predictor")):
         node = cls(cli_args=["--ros-args", "--params-file", str(CONFIG)],
@@ -129,7 +148,7 @@ def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
                    if name != "sim" else [])
         try:
             assert node.get_name() == name
-            own = config[f"/{name}"]["ros__parameters"]
+            own = config[f"/**/{name}"]["ros__parameters"]
             unknown = sorted(k for k in own if not node.has_parameter(k))
             assert not unknown, f"{name}: parameters in {CONFIG.name} that the node does not declare: {unknown}"
             for key, value in own.items():
@@ -238,3 +257,28 @@ def test_demo_scores_a_toppled_push_up_to_the_topple():
     assert upright["position_error_cm"] == pytest.approx(100.0)
     assert verdict(1.9, 9.0, True) == "GOOD" and verdict(1.0, 1.0, False) == "POOR"
     assert verdict(4.0, 25.0, True) == "FAIR" and verdict(6.0, 5.0, True) == "POOR"
+
+
+def test_up_namespace_and_sim_time_reach_the_nodes(rclpy_init, tiny_model, tmp_path):
+    """Issue 15.4: `physdyn up --namespace --use-sim-time --no-sim`, as the launch file's arguments do."""
+    proc = subprocess.Popen([PHYSDYN, "up", "--no-sim", "--nodes", "predictor", "--model", str(tiny_model),
+                             "--namespace", "robot1", "--use-sim-time", "--log-dir", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < deadline and not any("all nodes ready" in ln for ln in lines):
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+        assert any("all nodes ready" in ln for ln in lines), "".join(lines)[-2000:]
+        values = _remote_parameters("robot1/predictor", ["use_sim_time", "horizon"])
+        assert values == {"use_sim_time": True, "horizon": 60}
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    assert proc.returncode == 0
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["predictor.log"]  # --no-sim: no sim started
+    bad = subprocess.run([PHYSDYN, "up", "--namespace", "robot 1"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "is not a ROS namespace" in bad.stderr
