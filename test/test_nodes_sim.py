@@ -17,7 +17,7 @@ from physdyn_ros.nodes.sim_node import STATE_QOS, SimNode
 from physdyn_ros.ros.cloud import cloud_to_xyz
 from physdyn_ros.ros.convert import quat_to_matrix, time_to_ns
 from physdyn_ros.srv import PushObject, SpawnObject
-from test_nodes_support import Spinner, call, wait_for
+from test_nodes_support import Spinner, call, tiny_model, wait_for  # noqa: F401 - fixture
 
 
 def sim_node(**params) -> SimNode:
@@ -199,3 +199,28 @@ def test_cloud_is_the_posed_object_surface(rclpy_init, source):
                 else:
                     assert on_face.sum() == 0, f"hidden face {axis}{sign:+} has points"
         assert len(pts) > 200 and seen >= 2
+
+
+def test_sim_and_perception_publish_diagnostics(rclpy_init, tiny_model):
+    """Issue 15.2: /diagnostics from the sim and perception nodes too (the predictor's has its own test)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+
+    sim = sim_node(real_time_factor=0.0, publish_cloud_rate=5.0)
+    perception = PerceptionNode(parameter_overrides=[Parameter("model_path", value=str(tiny_model))])
+    rec = Recorder(rclpy_init)
+    got: dict[str, DiagnosticStatus] = {}
+    rec.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda m: got.update({s.name: s for s in m.status}), 10)
+    with Spinner(sim, perception, rec.node):
+        assert not call(rec.spawn, SpawnObject.Request(category="teapot")).success
+        assert wait_for(lambda: "sim: simulation" in got and "perception: clouds" in got
+                        and {kv.key: kv.value for kv in got["perception: clouds"].values}["clouds_with_features"]
+                        != "0", 15), sorted(got)
+    sim_status = got["sim: simulation"]
+    values = {kv.key: kv.value for kv in sim_status.values}
+    assert sim_status.level == DiagnosticStatus.WARN and "unknown category 'teapot'" in sim_status.message
+    assert values["refusals"] == "1" and values["object_id"] == sim.object_id
+    perc = {kv.key: kv.value for kv in got["perception: clouds"].values}
+    assert perc["model_id"] == perception.predictor.model_id and int(perc["features"]) >= 1

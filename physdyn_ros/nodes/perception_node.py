@@ -35,6 +35,7 @@ from ..ros.convert import point, time_to_ns, vector3
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
+from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.throttle import ReasonThrottle
 
 #: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, a slow callback never builds
@@ -140,6 +141,9 @@ class PerceptionNode(Node):
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, None, spin_thread=True)
         self.pub = self.create_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "object_markers", MARKER_QOS)
+        self.refused = 0
+        self._refusals = RefusalWindow()
+        self.diagnostics = Diagnostics(self, "clouds", self._diagnose)
         self.create_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
         frames = "tf2" if self._tf_buffer is not None else ("no tf2 (tf2_ros not importable)" if use_tf else
                                                             "tf off (use_tf false)")
@@ -261,7 +265,15 @@ class PerceptionNode(Node):
             out += [line, text]
         return MarkerArray(markers=out)
 
+    def _diagnose(self) -> Report:
+        level = self._refusals.level(self.refused)
+        return level, (f"last refusal: {self.last_error}" if level != OK else "encoding clouds"), {
+            "model_id": self.predictor.model_id, "clouds_with_features": self.processed,
+            "features": self.published, "clouds_refused": self.refused, "last_refusal": self.last_error,
+            "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks)}
+
     def _reject(self, msg: PointCloud2, reason: str) -> None:
+        self.refused += 1
         self.last_error = reason
         self._warn(f"cloud ({cloud_size(msg)} points, frame '{msg.header.frame_id}') ignored: {reason}", reason)
 

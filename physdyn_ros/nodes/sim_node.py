@@ -35,6 +35,7 @@ from ..msg import ObjectState
 from ..perception.frames import RigidTransform, camera_optical_pose
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, pose, quat_to_matrix, twist, vector3, xyz_to_numpy
+from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.params import declare
 from ..ros.run import run_node
 from ..ros.trajectory import object_state
@@ -160,6 +161,10 @@ class SimNode(Node):
         self.spawn(self.default_object_id, p("category").value, p("mesh_path").value, p("shape_seed").value,
                    p("scale").value, tuple(p("spawn_pose").value), self.friction)
 
+        self.refused = 0
+        self.last_error = ""
+        self._refusals = RefusalWindow()
+        self.diagnostics = Diagnostics(self, "simulation", self._diagnose, callback_group=g)
         self.create_service(PushObject, "push", self._on_push, callback_group=g)
         self.create_service(Trigger, "reset", self._on_reset, callback_group=g)
         self.create_service(SpawnObject, "spawn_object", self._on_spawn, callback_group=g)
@@ -177,6 +182,14 @@ class SimNode(Node):
         self.get_logger().info(
             f"ready: {self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
             f"'{self.table_frame}', real_time_factor {self.rtf:g}")
+
+    def _diagnose(self) -> Report:
+        level = self._refusals.level(self.refused)
+        return level, (f"last refusal: {self.last_error}" if level != OK else
+                       "pushing" if self._running else "at rest"), {
+            "object_id": self.object_id, "shape": self.sim.shape.name, "mass_kg": f"{self.sim.mass:.4f}",
+            "pushes": self.push_id, "push_running": self._running, "refusals": self.refused,
+            "last_refusal": self.last_error, "real_time_factor": self.rtf}
 
     # ------------------------------------------------------------------------------------------------ objects
     def load_shape(self, category: str, mesh_path: str, shape_seed: int):
@@ -399,8 +412,13 @@ class SimNode(Node):
             res.push_id = self.push_id
             res.initial_twist = twist(v, w)
         else:
-            self.get_logger().warning(res.message)
+            self._refuse(res.message)
         return res
+
+    def _refuse(self, reason: str) -> None:
+        self.refused += 1
+        self.last_error = reason
+        self.get_logger().warning(reason)
 
     def _on_step(self) -> None:
         if not self._running:
@@ -459,7 +477,7 @@ class SimNode(Node):
                        friction)
         except Exception as exc:  # noqa: BLE001 - bad mesh, unknown category: answer, keep the old object
             res.success, res.message = False, f"spawn failed: {exc}"
-            self.get_logger().warning(res.message)
+            self._refuse(res.message)
             return res
         res.success = True
         res.message = f"spawned {self.object_id}: {self.sim.shape.name} ({self.sim.mass:.3f} kg)"
