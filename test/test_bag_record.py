@@ -151,3 +151,33 @@ def test_max_bytes_stops_the_recorder_cleanly(rclpy_init, tmp_path):
     assert len(got) > 1000 and got == sent[:len(got)]
     assert sum(p.stat().st_size for p in (tmp_path / "bag").iterdir()) <= 700 * 1024
     node.destroy_node()
+
+
+def test_recorder_publishes_diagnostics(rclpy_init, tmp_path):
+    """Issue 15.2: the recorder reports on /diagnostics what it records and receives."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    node = rclpy_init.create_node("bag_pub_diag")
+    states, = _publishers(node, ("object_state", BURST))
+    got: list = []
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda m: got.extend(s for s in m.status if s.name == "recorder: recording"), 10)
+    rec = Recorder(tmp_path / "bag", "object_state")
+    try:
+        assert wait_until(lambda: states.get_subscription_count() > 0)
+        for i in range(20):
+            states.publish(object_state_bytes(i))
+
+        def received() -> bool:
+            rclpy_init.spin_once(node, timeout_sec=0.1)
+            return any({kv.key: kv.value for kv in s.values}.get("received") == "20" for s in got)
+        assert wait_until(received, timeout=15), [[(kv.key, kv.value) for kv in s.values] for s in got[-1:]]
+        rc, _, err = rec.stop(signal.SIGINT)
+        assert rc == 0, err
+    finally:
+        if rec.proc.poll() is None:
+            rec.kill()
+        node.destroy_node()
+    last = got[-1]
+    values = {kv.key: kv.value for kv in last.values}
+    assert last.level == DiagnosticStatus.OK and values["topics_recording"] == "1" and values["lost"] == "0"

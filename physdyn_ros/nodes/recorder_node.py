@@ -42,6 +42,7 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 
 from ..bag.types import SUITE_TOPICS, ensure_type
 from ..bag.writer import MiB, BagStorageError, BagWriter
+from ..ros.diagnostics import ERROR, OK, WARN, Diagnostics, Report
 from ..ros.params import declare
 
 #: After a stop request, keep taking messages until this long without one ...
@@ -169,7 +170,15 @@ class RecorderNode(Node):
         self.last_sent: dict[int, int] = {}  # topic id -> latest source timestamp (ns, publisher clock)
         self._warned: set[str] = set()
         self._next_poll = 0.0
+        self.diagnostics = Diagnostics(self, "recording", self._diagnose)
         self.poll()
+
+    def _diagnose(self) -> Report:
+        level = ERROR if self.failure else WARN if self.lost else OK
+        message = self.failure or (f"{self.lost} message(s) lost" if self.lost else f"recording to {self.writer.path}")
+        return level, message, {"bag": str(self.writer.path), "topics_recording": len(self.subs),
+                                "topics_waiting": len(self.pending), "received": self.received, "lost": self.lost,
+                                "written": self.writer.message_count}
 
     # ---------------------------------------------------------------------------------------------- discovery
     def _warn_once(self, key: str, text: str) -> None:
