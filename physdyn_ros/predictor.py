@@ -145,6 +145,10 @@ def _quaternions(value: Any, name: str, batch: Optional[int] = None) -> np.ndarr
     return q / norm
 
 
+#: m, the sizes of object the models were trained on (the broad world: 1.5-45 cm per axis, config/generate_broad.yaml)
+MIN_OBJECT_SIZE, MAX_OBJECT_SIZE = 0.01, 0.6
+
+
 def check_cloud(cloud: Any) -> np.ndarray:
     """An (N, 3) finite, non-empty float64 array, or ValueError naming the problem."""
     try:
@@ -157,6 +161,19 @@ def check_cloud(cloud: Any) -> np.ndarray:
         raise ValueError("cloud is empty (0 points)")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"cloud contains NaN or inf ({int(np.sum(~np.isfinite(arr)))} values)")
+    # The extents along the cloud's principal axes: a point, a line or a sheet of points is not a solid object,
+    # and the models were trained on objects of MIN_OBJECT_SIZE-MAX_OBJECT_SIZE (generate: push.size_limits).
+    centred = arr - arr.mean(axis=0)
+    axes = np.linalg.svd(centred[:: max(1, len(arr) // 4096)], full_matrices=False)[2]
+    proj = centred @ axes.T
+    extent = proj.max(axis=0) - proj.min(axis=0)  # largest first
+    if extent[0] > MAX_OBJECT_SIZE:
+        raise ValueError(f"cloud spans {extent[0]:.2f} m, larger than any trained object ({MAX_OBJECT_SIZE:g} m): "
+                         "is it one object, cropped from the table, in metres?")
+    if extent[0] < MIN_OBJECT_SIZE or extent[1] < MIN_OBJECT_SIZE:
+        raise ValueError(f"cloud is degenerate: it spans only {extent[0] * 100:.2f} x {extent[1] * 100:.2f} cm across its "
+                         f"two main directions (a point or a line of points; objects measure at least "
+                         f"{MIN_OBJECT_SIZE * 100:g} cm)")
     return arr
 
 

@@ -427,15 +427,15 @@ def test_the_predictor_addresses_any_tracked_object(rclpy_init, tiny_model):
     with Spinner(node, predictor, lis.node, threads=6):
         assert wait_for(lambda: lis.cloud.get_subscription_count() > 0, 10)
         msg = xyz_to_cloud(scene.points, "camera_optical_frame", ns_to_time(stamp))
-        assert wait_for(lambda: (lis.cloud.publish(msg), len(lis.of(stamp)) >= 3)[1], 20, step=0.5)
+        assert wait_for(lambda: (lis.cloud.publish(msg), len(lis.of(stamp)) >= 3)[1], 40, step=0.5)
         feats = {f.object_id: f for f in lis.of(stamp)}
-        for oid, f in feats.items():  # the service, by each tracked id
+        for oid, f in feats.items():  # the service, by each tracked id (generous waits: a loaded CI machine)
             req = PredictTrajectory.Request(object_id=oid, horizon=5)
             req.header.frame_id, req.header.stamp = "world", ns_to_time(stamp)
             req.initial_pose.position = f.centroid
             req.initial_twist.linear.x = 0.3
             answers = []  # the predictor may not have received that feature yet: ask again
-            assert wait_for(lambda: (answers.append(call(service, req)), answers[-1].success)[1], 10, step=0.2), \
+            assert wait_for(lambda: (answers.append(call(service, req)), answers[-1].success)[1], 20, step=0.2), \
                 answers[-1].message
             assert answers[-1].trajectory.object_id == oid
         target = sorted(feats)[1]

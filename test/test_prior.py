@@ -172,3 +172,22 @@ def test_topple_probability_agrees_with_the_predicted_poses():
     assert consistent_topple(prob, quats).tolist() == [[0.0, 0.3, 0.3, 1.0, 1.0, 1.0]]
     upright = np.tile([0, 0, 0, 1.0], (1, 6, 1))
     assert consistent_topple(prob, upright).tolist() == [[0.0, 0.3, 0.3, 0.3, 0.3, 0.3]]
+
+
+def test_degenerate_and_out_of_range_clouds_are_refused(tmp_path):
+    """Issue 11.4: one point repeated or a line of points got a confident trajectory."""
+    import pytest
+
+    from physdyn_ros.predictor import check_cloud
+
+    rng = np.random.default_rng(0)
+    box = rng.uniform(-1, 1, (500, 3)) * (0.05, 0.03, 0.04)
+    assert check_cloud(box).shape == (500, 3)
+    with pytest.raises(ValueError, match="degenerate"):
+        check_cloud(np.tile([0.1, 0.2, 0.03], (300, 1)))
+    with pytest.raises(ValueError, match="degenerate"):
+        check_cloud(np.outer(np.linspace(0, 0.2, 100), [1.0, 0.5, 0.0]))  # a line
+    with pytest.raises(ValueError, match="larger than any trained object"):
+        check_cloud(box * 40)
+    flat_but_wide = box * (1, 1, 0)  # a sheet: a real table-top object's visible top face, kept
+    assert check_cloud(flat_but_wide).shape == (500, 3)
