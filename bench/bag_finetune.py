@@ -77,7 +77,8 @@ def record_session(bag: Path, pushes: int, friction: float, seed: int) -> int:
         rng = np.random.default_rng(seed)
         for i in range(pushes):
             cat = CATEGORIES[i % len(CATEGORIES)]
-            call(spawn, SpawnObject.Request(category=cat, shape_seed=5000 + i, yaw=float(rng.uniform(-math.pi, math.pi)),
+            yaw = float(rng.uniform(-math.pi, math.pi))
+            call(spawn, SpawnObject.Request(category=cat, shape_seed=5000 + i, yaw=yaw,
                                             friction=friction))
             time.sleep(0.45)  # the recorder sees the new object's cloud (5 Hz) before the push
             speed, heading = rng.uniform(0.3, 1.2), rng.uniform(-math.pi, math.pi)

@@ -15,7 +15,6 @@ Prints markdown tables; writes OUT/generalization.json and OUT/generalization.md
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,8 @@ def metrics(ckpt: Path, data: str, categories: list[str] | None, steps_in: int, 
     if len(index) > max_sequences:
         index = np.linspace(0, len(sims) - 1, max_sequences).astype(np.int64)
     traj = model_rollouts(model, sims, index, horizon, steps_in)
-    return evaluate_all({"model": traj}, {}, ground_truth(sims, index, horizon), sims, index, horizon)["overall"]["model"]
+    gt = ground_truth(sims, index, horizon)
+    return evaluate_all({"model": traj}, {}, gt, sims, index, horizon)["overall"]["model"]
 
 
 def row(name: str, shapes: str, m: dict[str, Any]) -> str:

@@ -160,7 +160,8 @@ def matrix_compose_scan(deltas: np.ndarray, r0: np.ndarray) -> np.ndarray:
 
 def quat_compose_scan(deltas: np.ndarray, q0: np.ndarray) -> np.ndarray:
     """Quaternion version of matrix_compose_scan: q_0 = q0, q_{t+1} = deltas[t] * q_t; (..., H+1, 4), w >= 0."""
-    return matrix_to_quat(matrix_compose_scan(quat_to_matrix(quat_normalize(deltas)), quat_to_matrix(quat_normalize(q0))))
+    scan = matrix_compose_scan(quat_to_matrix(quat_normalize(deltas)), quat_to_matrix(quat_normalize(q0)))
+    return matrix_to_quat(scan)
 
 
 def yaw_matrix(psi: np.ndarray | float) -> np.ndarray:

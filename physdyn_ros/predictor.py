@@ -171,7 +171,8 @@ def check_cloud(cloud: Any) -> np.ndarray:
         raise ValueError(f"cloud spans {extent[0]:.2f} m, larger than any trained object ({MAX_OBJECT_SIZE:g} m): "
                          "is it one object, cropped from the table, in metres?")
     if extent[0] < MIN_OBJECT_SIZE or extent[1] < MIN_OBJECT_SIZE:
-        raise ValueError(f"cloud is degenerate: it spans only {extent[0] * 100:.2f} x {extent[1] * 100:.2f} cm across its "
+        raise ValueError(f"cloud is degenerate: it spans only {extent[0] * 100:.2f} x {extent[1] * 100:.2f} cm "
+                         "across its "
                          f"two main directions (a point or a line of points; objects measure at least "
                          f"{MIN_OBJECT_SIZE * 100:g} cm)")
     return arr
@@ -347,7 +348,8 @@ class Predictor:
             return None
         get = (lambda k: getattr(observed, k)) if isinstance(observed, Observed) else (lambda k: observed[k])
         try:
-            arrays = {k: np.asarray(get(k), dtype=np.float64) for k in ("positions", "orientations", "lin_vels", "ang_vels")}
+            arrays = {k: np.asarray(get(k), dtype=np.float64)
+                      for k in ("positions", "orientations", "lin_vels", "ang_vels")}
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"observed must hold positions, orientations, lin_vels, ang_vels: {exc}") from None
         k = len(arrays["positions"])
@@ -418,7 +420,8 @@ def settle(d_pos: np.ndarray, d_rot: np.ndarray, lin: np.ndarray, ang: np.ndarra
     friction holds a stopped object.) d_pos, d_rot (B, H, 3); lin, ang (B, H+1, 3). Returns j per row (H+1: never).
     """
     quiet_state = (np.linalg.norm(lin, axis=-1) < REST_LIN_VEL) & (np.linalg.norm(ang, axis=-1) < REST_ANG_VEL)
-    quiet_step = (np.linalg.norm(d_pos, axis=-1) < REST_LIN_VEL * dt) & (np.linalg.norm(d_rot, axis=-1) < REST_ANG_VEL * dt)
+    quiet_step = ((np.linalg.norm(d_pos, axis=-1) < REST_LIN_VEL * dt)
+                  & (np.linalg.norm(d_rot, axis=-1) < REST_ANG_VEL * dt))
     quiet = quiet_state.copy()
     quiet[:, 1:] |= quiet_step
     quiet[:, :max(first, 1)] = False

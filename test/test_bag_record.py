@@ -61,7 +61,8 @@ def test_clean_stop_during_burst_loses_nothing(rclpy_init, tmp_path, sig, storag
     assert "2021 messages on 3 topic(s)" in out, out
     got = read_bag(tmp_path / "bag")
     assert [d for t, _, d in got if t == "/object_state"] == sent  # all of them, in order, byte for byte
-    assert [d for t, _, d in got if t == "/chatter"] == [string_bytes(f"chat{i // 100:03d}") for i in range(0, 2000, 100)]
+    chat = [string_bytes(f"chat{i // 100:03d}") for i in range(0, 2000, 100)]
+    assert [d for t, _, d in got if t == "/chatter"] == chat
     assert [d for t, _, d in got if t == "/latched"] == [string_bytes("before the recorder")]
     assert all(t_start <= t <= t_end for topic, t, _ in got if topic != "/latched")  # receive times
     with Reader(tmp_path / "bag") as reader:

@@ -8,7 +8,6 @@ import errno
 import os
 import subprocess
 import tempfile
-from pathlib import Path
 
 import pytest
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime

@@ -4,6 +4,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 from conftest import ROOT
 
@@ -100,6 +101,14 @@ def test_requirements_pin_what_the_code_imports():
             unpinned.append(f"{top} ({', '.join(sorted(dists))}, imported by {where})")
     assert not unpinned, f"requirements.txt does not pin: {unpinned}"
     used = {d.lower().replace("_", "-") for t in imported for d in owners.get(t, [])}
-    tools = ("ros-", "colcon-", "catkin-pkg", "pytest")  # build and test tools: run, not imported
+    tools = ("ros-", "colcon-", "catkin-pkg", "pytest", "ruff")  # build, test and lint tools: run, not imported
     unused = sorted(d for d in pinned if not d.startswith(tools) and d not in used)
     assert not unused, f"pinned but never imported: {unused}"
+
+
+def test_ruff_is_clean():
+    """Issue 15.11: pyflakes and pycodestyle (ruff.toml) over the package, benches and tests."""
+    ruff = Path(sys.executable).parent / "ruff"
+    run = subprocess.run([str(ruff), "check", "--output-format", "concise", "."], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-1000:]

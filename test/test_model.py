@@ -144,7 +144,7 @@ def test_predictor_is_equivariant_to_yaw_and_horizontal_translation(tmp_path):
     pred = Predictor.load(random_checkpoint(tmp_path / "m.pt"))
     rng = np.random.default_rng(2)
     for _ in range(10):
-        cloud = rng.normal(size=(rng.integers(40, 400), 3)) * rng.uniform(0.02, 0.2, 3) + [0, 0, 0.1]
+        cloud = rng.normal(size=(rng.integers(40, 400), 3)) * rng.uniform(0.02, 0.08, 3) + [0, 0, 0.1]  # <= 60 cm
         v, w = rng.normal(size=3), rng.normal(size=3) * 3
         psi, shift = rng.uniform(-np.pi, np.pi), np.array([*rng.normal(size=2) * 2, 0.0])
         q0 = geo.quat_normalize(rng.normal(size=4))

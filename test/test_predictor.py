@@ -184,7 +184,8 @@ def test_cloud_files_and_predict_command(tmp_path, cloud, model_path, capsys):
     for name in ("c.npy", "c.ply", "a.ply", "c.xyz"):
         assert np.allclose(load_cloud(tmp_path / name), cloud, atol=1e-6), name
     with pytest.raises(ValueError, match="unsupported"):
-        load_cloud(tmp_path / "c.xyz").tolist() and load_cloud((tmp_path / "c.obj", (tmp_path / "c.obj").write_text("v"))[0])
+        (tmp_path / "c.obj").write_text("v")
+        load_cloud(tmp_path / "c.xyz").tolist() and load_cloud(tmp_path / "c.obj")
     code = main(["predict", "--model", str(model_path), "--cloud", str(tmp_path / "c.ply"), "--lin-vel", "0.4", "0",
                  "0", "--ang-vel", "0", "0", "1", "--horizon", "30"])
     out = capsys.readouterr().out

@@ -5,7 +5,6 @@ import json
 import re
 import subprocess
 
-import pytest
 
 from conftest import PYTHON, ROOT
 from physdyn_ros.launcher import Suite

@@ -86,6 +86,6 @@ def test_broken_package_stops_setup(tmp_path, breakage, failed_step):
     run = run_setup_on(copy)
     out = run.stdout + run.stderr
     assert run.returncode != 0, out[-3000:]
-    assert f"setup: FAILED: " in out and failed_step in out.split("setup: FAILED: ")[-1], out[-3000:]
+    assert "setup: FAILED: " in out and failed_step in out.split("setup: FAILED: ")[-1], out[-3000:]
     assert "install interfaces" not in run.stdout.replace("FAILED", ""), "a broken build was installed"
     assert "ready:" not in run.stdout

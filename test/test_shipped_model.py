@@ -1,7 +1,8 @@
 """Regression guard for the shipped model (physdyn_ros/models/default.pt) on fixed test-split sequences.
 
 test/fixtures/regression_set.npz holds 20 sequences of shapes never trained on (three per category that move
-for more than 8 frames without toppling, two that topple; test/fixtures/make_regression_set.py). The bounds sit about 1.5x above what the shipped model
+for more than 8 frames without toppling, two that topple; test/fixtures/make_regression_set.py). The bounds sit
+about 1.5x above what the shipped model
 measures on them (numbers in physdyn_ros/models/MODEL_CARD.md), so a broken export, a changed frame
 convention or a worse model fails here.
 """

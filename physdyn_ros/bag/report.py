@@ -11,7 +11,6 @@ A top-view PNG shows, per push, the observed centre-of-mass path (solid) and the
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import tempfile

@@ -70,8 +70,9 @@ def _register(store: Typestore, msgtype: str, seen: set[str]) -> None:
     seen.add(msgtype)
     path = _find_msg(msgtype)
     if path is None:
-        raise ValueError(f"unknown message type {msgtype!r}: not a ROS 2 Jazzy type and no {msgtype.split('/')[-1]}.msg "
-                         f"found in share/{msgtype.split('/')[0]}/msg of the ROS prefixes (source its workspace)")
+        package, name = msgtype.split('/')[0], msgtype.split('/')[-1]
+        raise ValueError(f"unknown message type {msgtype!r}: not a ROS 2 Jazzy type and no {name}.msg "
+                         f"found in share/{package}/msg of the ROS prefixes (source its workspace)")
     types = get_types_from_msg(path.read_text(), msgtype)
     for _, fields in types.values():
         for _, (kind, arg) in fields:

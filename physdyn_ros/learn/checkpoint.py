@@ -107,7 +107,8 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
                                   "unpickle it (not a physdyn checkpoint, or from an untrusted source)") from exc
         raise CheckpointError(f"checkpoint {path} is corrupt or not a torch file ({type(exc).__name__})") from exc
     if not isinstance(obj, dict) or obj.get("format") != FORMAT:
-        raise CheckpointError(f"{path} is not a physdyn checkpoint (format {obj.get('format') if isinstance(obj, dict) else type(obj).__name__!r})")
+        kind = obj.get('format') if isinstance(obj, dict) else type(obj).__name__
+        raise CheckpointError(f"{path} is not a physdyn checkpoint (format {kind!r})")
     if obj.get("version") != FORMAT_VERSION:
         raise CheckpointError(f"{path}: checkpoint format version {obj.get('version')} is not supported by this "
                               f"code (version {FORMAT_VERSION}); retrain or use a matching physdyn_ros release")
@@ -131,7 +132,8 @@ def build_model(ckpt: dict[str, Any], path: str | os.PathLike = "<checkpoint>") 
     return model.eval()
 
 
-def load_model(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> tuple[DynamicsModel, dict[str, Any]]:
+def load_model(path: str | os.PathLike,
+               map_location: str | torch.device = "cpu") -> tuple[DynamicsModel, dict[str, Any]]:
     """Convenience: (model in eval mode, checkpoint dict)."""
     ckpt = load_checkpoint(path, map_location)
     return build_model(ckpt, path), ckpt

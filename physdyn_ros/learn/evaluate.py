@@ -150,7 +150,8 @@ def topple_scores(pred: np.ndarray, true: np.ndarray) -> dict[str, Any]:
     fn, tn = int(np.sum(~pred & true)), int(np.sum(~pred & ~true))
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None
-    f1 = (2 * precision * recall / (precision + recall)) if precision and recall else (0.0 if tp + fp and tp + fn else None)
+    f1 = ((2 * precision * recall / (precision + recall)) if precision and recall
+          else (0.0 if tp + fp and tp + fn else None))
     return {"n": len(pred), "toppled": tp + fn, "accuracy": (tp + tn) / max(len(pred), 1), "precision": precision,
             "recall": recall, "f1": f1, "tp": tp, "fp": fp, "fn": fn, "tn": tn}
 
@@ -231,9 +232,11 @@ def markdown_report(report: dict[str, Any]) -> str:
         for m, r in res.items():
             if "single_step" in r:
                 s = r["single_step"]
-                lines.append(f"| {g} | {m} | " + " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis")) + " |")
+                cells = " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
+                lines.append(f"| {g} | {m} | {cells} |")
     lines += ["", "## Roll-out (sequences without toppling)", "",
-              "| group | method | n | v | w | P | abs theta | axis | final P cm (median / p90) | final rot deg (median / p90) |",
+              "| group | method | n | v | w | P | abs theta | axis | final P cm (median / p90) "
+              "| final rot deg (median / p90) |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for g, res in groups:
         for m, r in res.items():
@@ -241,9 +244,11 @@ def markdown_report(report: dict[str, Any]) -> str:
             fp, fr = r["final_pos_cm"], r["final_rot_deg"]
             lines.append(f"| {g} | {m} | {r['rollout_sequences']} | "
                          + " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
-                         + f" | {_fmt(fp['median'], 2)} / {_fmt(fp['p90'], 2)} | {_fmt(fr['median'], 2)} / {_fmt(fr['p90'], 2)} |")
+                         + f" | {_fmt(fp['median'], 2)} / {_fmt(fp['p90'], 2)}"
+                         + f" | {_fmt(fr['median'], 2)} / {_fmt(fr['p90'], 2)} |")
     lines += ["", "## Topple classification of whole trajectories (all sequences)", "",
-              "| group | method | n | toppled | accuracy | precision | recall | F1 |", "|---|---|---|---|---|---|---|---|"]
+              "| group | method | n | toppled | accuracy | precision | recall | F1 |",
+              "|---|---|---|---|---|---|---|---|"]
     for g, res in groups:
         for m, r in res.items():
             if "topple" in r:

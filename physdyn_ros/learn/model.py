@@ -402,7 +402,8 @@ class DynamicsModel(nn.Module):
             raise ValueError(f"normalization stats lack {missing}")
         values = torch.tensor([float(stats[k]) for k in STAT_KEYS])
         if not torch.all(torch.isfinite(values)) or torch.any(values <= 0):
-            raise ValueError(f"normalization scales must be finite and positive: {dict(zip(STAT_KEYS, values.tolist()))}")
+            scales = dict(zip(STAT_KEYS, values.tolist()))
+            raise ValueError(f"normalization scales must be finite and positive: {scales}")
         self.scales.copy_(values)
 
     def normalization(self) -> dict[str, float]:
@@ -470,8 +471,8 @@ class DynamicsModel(nn.Module):
         # torch kernel: gates (i, f, o, g), g columns doubled (tanh(a) = 2 sigmoid(2 a) - 1)
         two = torch.ones(4 * hidden, dtype=w_out.dtype, device=w_out.device)
         two[3 * hidden:] = 2.0
-        w = [torch.cat([w_x[0][:6], w_h[0]], 0) * two] + [torch.cat([w_x[l], w_h[l]], 0) * two
-                                                         for l in range(1, layers)]
+        w = [torch.cat([w_x[0][:6], w_h[0]], 0) * two] + [torch.cat([w_x[i], w_h[i]], 0) * two
+                                                         for i in range(1, layers)]
         head = w_out.new_zeros(6 + layers * hidden, OUT_DIM)
         if w_skip.shape[0]:
             head[:6] = w_skip
@@ -493,7 +494,7 @@ class DynamicsModel(nn.Module):
             return np.ascontiguousarray((m[..., order] * col).numpy(), dtype=np.float32)
 
         w0 = gates(torch.cat([w_x[0][:6], torch.zeros(1, 4 * hidden), 0.5 * w_h[0]], 0))
-        w_np = [gates(torch.cat([0.5 * w_x[l], bias[l][None], 0.5 * w_h[l]], 0)) for l in range(1, layers)]
+        w_np = [gates(torch.cat([0.5 * w_x[i], bias[i][None], 0.5 * w_h[i]], 0)) for i in range(1, layers)]
         size = 6 + layers * (hidden + 1)
         last = 7 + (layers - 1) * (hidden + 1)
         head_np = torch.zeros(size, OUT_DIM + 6)

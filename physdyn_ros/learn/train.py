@@ -452,8 +452,8 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
                 if not progress:
                     keys = ("epoch", "train_total", "val_loss", "val_closed_loss", "val_final_pos_cm",
                             "val_final_rot_deg", "lr", "epoch_s")
-                    print(" ".join(f"{k}={record[k]:.4g}" if isinstance(record.get(k), float) else f"{k}={record.get(k)}"
-                                   for k in keys if k in record), file=sys.stderr)
+                    print(" ".join(f"{k}={record[k]:.4g}" if isinstance(record.get(k), float)
+                                   else f"{k}={record.get(k)}" for k in keys if k in record), file=sys.stderr)
             _barrier(d)
     summary = {"epochs_done": prog["epoch"], "step": prog["step"], "best_metric": prog["best_metric"],
                "best_epoch": prog["best_epoch"], "stopped": stopped, "out": str(out),
@@ -479,7 +479,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", default=None, metavar="CHECKPOINT",
                         help="fine-tune: start a new run from this checkpoint's weights and normalisation (its "
                              "config is used unless --config is given; change train values with --set)")
-    parser.add_argument("--max-epochs", type=int, default=None, help="train until this many epochs (overrides train.epochs)")
+    parser.add_argument("--max-epochs", type=int, default=None,
+                        help="train until this many epochs (overrides train.epochs)")
     parser.add_argument("--time-limit", default=None, help="stop cleanly after this long (e.g. 3600, 90m, 2h)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (overrides train.threads)")

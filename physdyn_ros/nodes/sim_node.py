@@ -34,7 +34,7 @@ from ..conventions import DT, TABLE_FRAME
 from ..msg import ObjectState
 from ..perception.frames import RigidTransform, camera_optical_pose
 from ..ros.cloud import xyz_to_cloud
-from ..ros.convert import ns_to_time, pose, quat_to_matrix, twist, vector3, xyz_to_numpy
+from ..ros.convert import ns_to_time, quat_to_matrix, twist, vector3, xyz_to_numpy
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.params import declare
 from ..ros.run import run_node

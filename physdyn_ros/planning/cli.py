@@ -13,7 +13,6 @@ import json
 import math
 from typing import Any
 
-import numpy as np
 
 from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner
 

@@ -197,8 +197,8 @@ class PlannerConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in (
                     "horizon", "refine_steps") else 1):
-                raise PlanningError(f"{name} must be a {'non-negative' if name in ('horizon', 'refine_steps') else 'positive'} "
-                                    f"integer, got {v!r}")
+                kind = 'non-negative' if name in ('horizon', 'refine_steps') else 'positive'
+                raise PlanningError(f"{name} must be a {kind} integer, got {v!r}")
         if self.samples < 8:
             raise PlanningError(f"samples must be >= 8, got {self.samples}")
 

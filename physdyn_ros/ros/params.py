@@ -40,7 +40,8 @@ def declare(node: Node, name: str, default: Any, description: str, *, read_only:
                                                to_value=int(high if high is not None else 2**62), step=0)]
         else:
             desc.floating_point_range = [FloatingPointRange(
-                from_value=float(low if low is not None else -1e300), to_value=float(high if high is not None else 1e300),
+                from_value=float(low if low is not None else -1e300),
+                to_value=float(high if high is not None else 1e300),
                 step=0.0)]
     value = node.declare_parameter(name, default, desc).value
     if choices is not None:

@@ -1,4 +1,7 @@
-"""Shapes: procedural categories and families, user meshes, mass properties (numpy / open3d / trimesh; never pybullet)."""
+"""Shapes: procedural categories and families, user meshes, mass properties.
+
+numpy / open3d / trimesh only: never pybullet.
+"""
 from .core import DEFAULT_DENSITY, MassProperties, Shape, convex_hull, make_shape, mass_properties, sample_surface, \
     shape_from_points
 from .meshes import PYBULLET_DATA_CATEGORY, load_mesh, pybullet_data_meshes, pybullet_data_shapes

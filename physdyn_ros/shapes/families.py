@@ -604,7 +604,8 @@ def _gear(rng: np.random.Generator) -> _Built:
 _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
     f.name: (b, f) for b, f in [
         (_superellipsoid, Family("superellipsoid", "rounded", True,
-                                 "superellipsoids with a flat base: rounded boxes, ellipsoids, pillows, diamonds, domes")),
+                                 "superellipsoids with a flat base: rounded boxes, ellipsoids, pillows, diamonds, "
+                                 "domes")),
         (_capsule, Family("capsule", "rounded", True,
                           "hulls of 2-4 spheres: pills, lozenges, rounded triangles/rectangles, upright capsules")),
         (_prism, Family("prism", "prismatic", True,

@@ -113,8 +113,9 @@ def _pybullet_data_dir() -> Path:
 def pybullet_data_meshes(max_random: int = 60) -> list[MeshSpec]:
     """The out-of-category test meshes available in pybullet_data (sorted, deterministic).
 
-    Named objects (duck, bunny, teddy, lego, torus, toy prism; the soccer ball is left out: its panels are open) plus up to `max_random` random_urdfs
-    objects. Meshes that do not enclose a positive volume are skipped by `pybullet_data_shapes`.
+    Named objects (duck, bunny, teddy, lego, torus, toy prism; the soccer ball is left out: its panels are open)
+    plus up to `max_random` random_urdfs objects. Meshes that do not enclose a positive volume are skipped by
+    `pybullet_data_shapes`.
     """
     root = _pybullet_data_dir()
     named = [("duck", "duck.obj", "y", 0.15), ("bunny", "bunny.obj", "y", 0.15),

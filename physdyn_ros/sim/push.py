@@ -29,7 +29,8 @@ class PushConfig:
 
     The impulse is J = mass * speed * d: d is horizontal at a random azimuth, tilted by a random elevation.
     Slender objects topple whenever they slide fast (friction at the base tips them when mu h_com > half
-    width), so gentle pushes dominate the speed distribution. It is applied where a ray along d hits the object's surface; the ray is offset from the COM sideways
+    width), so gentle pushes dominate the speed distribution. It is applied where a ray along d hits the object's
+    surface; the ray is offset from the COM sideways
     (fraction of the object's half width, gives spin) and vertically (uniform over the object's height, gives
     toppling / wobbling for high pushes). The speed is then capped so |v0| <= max_speed and |w0| <= max_spin.
     """
