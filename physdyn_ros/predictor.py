@@ -28,7 +28,8 @@ from typing import Any, Mapping, Optional, Sequence, Union
 import numpy as np
 
 from . import geometry as geo
-from .conventions import DT, REST_ANG_VEL, REST_LIN_VEL, TOPPLE_ANGLE
+from .conventions import DT
+from .learn.rules import consistent_topple, settle
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -400,41 +401,6 @@ class Predictor:
         orientations = compose_rotations(q0, d_rot)
         prob = np.concatenate([np.zeros((len(raw), 1)), 1.0 / (1.0 + np.exp(-raw[..., 12].astype(np.float64)))], axis=1)
         return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations))
-
-
-def consistent_topple(prob: np.ndarray, orientations: np.ndarray) -> np.ndarray:
-    """Per-step topple probabilities (B, H+1) that agree with the predicted poses: a topple cannot be undone (the
-    probability never decreases along a trajectory), and a predicted pose tilted past TOPPLE_ANGLE has toppled
-    (probability 1 from there on)."""
-    x, y = orientations[..., 0], orientations[..., 1]
-    tilted = 1.0 - 2.0 * (x * x + y * y) < np.cos(TOPPLE_ANGLE)  # the up axis' z component (geometry.up_tilt_angle)
-    return np.maximum.accumulate(np.where(tilted, 1.0, prob), axis=1)
-
-
-def settle(d_pos: np.ndarray, d_rot: np.ndarray, lin: np.ndarray, ang: np.ndarray, first: int = 1,
-           dt: float = DT) -> np.ndarray:
-    """The rest rule on predictions, in place: from the first state j >= `first` that is quiet (its speeds under
-    REST_LIN_VEL / REST_ANG_VEL, or the step into it moved less than they allow in dt), the object stays where it
-    is with exactly zero velocity: the steps after j move nothing and the velocities of states >= j are zero.
-    (A network's fed-back velocity can keep an offset after its poses have stopped; on a flat table static
-    friction holds a stopped object.) d_pos, d_rot (B, H, 3); lin, ang (B, H+1, 3). Returns j per row (H+1: never).
-    """
-    quiet_state = (np.linalg.norm(lin, axis=-1) < REST_LIN_VEL) & (np.linalg.norm(ang, axis=-1) < REST_ANG_VEL)
-    quiet_step = ((np.linalg.norm(d_pos, axis=-1) < REST_LIN_VEL * dt)
-                  & (np.linalg.norm(d_rot, axis=-1) < REST_ANG_VEL * dt))
-    quiet = quiet_state.copy()
-    quiet[:, 1:] |= quiet_step
-    quiet[:, :max(first, 1)] = False
-    horizon = d_pos.shape[1]
-    rest = np.where(quiet.any(axis=1), quiet.argmax(axis=1), horizon + 1)
-    state_idx = np.arange(horizon + 1)[None, :]
-    still_state = state_idx >= rest[:, None]
-    lin[still_state] = 0.0
-    ang[still_state] = 0.0
-    still_step = state_idx[:, :horizon] >= rest[:, None]  # step t leads from state t to t + 1
-    d_pos[still_step] = 0.0
-    d_rot[still_step] = 0.0
-    return rest
 
 
 def _yaw_rotate(vec: np.ndarray, headings: np.ndarray) -> np.ndarray:
