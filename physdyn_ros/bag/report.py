@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .. import geometry as geo
 from ..conventions import TOPPLE_ANGLE
+from ..data.format import atomic_write
 from .pushes import NS, Session, find_pushes, load_session, sample
 
 MAX_PLOTS = 48
@@ -132,15 +131,8 @@ def plot(session: Session, rows: list[dict], path: Path) -> None:
     more = f" (first {MAX_PLOTS} of {len(rows)})" if len(rows) > MAX_PLOTS else ""
     fig.suptitle(f"{session.bag.name}: top view, x / y in {frame} (m){more}", fontsize=10)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        atomic_write(path, lambda fh: fig.savefig(fh, dpi=110, format="png"))
     finally:
         plt.close(fig)
 

@@ -42,6 +42,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.rosbag2.storage_mcap import McapWriter
 from ruamel.yaml import YAML
 
+from ..data.format import atomic_write
 from .types import typestore
 
 STORAGES: dict[str, tuple[StoragePlugin, str]] = {"mcap": (StoragePlugin.MCAP, ".mcap"),
@@ -418,12 +419,7 @@ class BagWriter:
         yaml.default_flow_style = False
         text = StringIO()
         yaml.dump({"rosbag2_bagfile_information": info}, text)
-        tmp = self.path / f".{METADATA}.tmp"
-        with open(tmp, "w", encoding="utf8") as fh:
-            fh.write(text.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.path / METADATA)
+        atomic_write(self.path / METADATA, lambda fh: fh.write(text.getvalue().encode("utf8")))
 
 
 def _fsync(path: Path) -> None:
