@@ -174,3 +174,16 @@ def test_refusals(session, tmp_path, capsys):
     assert "no topic 'predicted_path'" in capsys.readouterr().err
     assert cli_main(["bag2dataset", str(tmp_path / "nope"), str(tmp_path / "ds")]) == 2
     assert not (tmp_path / "ds").exists()
+
+
+def test_report_of_the_session(session, tmp_path, capsys):
+    """`physdyn report` on a real session: one entry per push, the PNG written atomically, the JSON."""
+    import json
+
+    bag, _ = session
+    png, out = tmp_path / "r.png", tmp_path / "r.json"
+    assert cli_main(["report", str(bag), "--png", str(png), "--json", str(out)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file left behind
+    report = json.loads(out.read_text())
+    assert len(report["pushes"]) == len(PUSHES)
