@@ -29,7 +29,7 @@ import numpy as np
 
 from . import geometry as geo
 from .conventions import DT
-from .learn.rules import consistent_topple, settle
+from .learn.rules import consistent_topple, flat_unless_toppling, settle
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -395,11 +395,12 @@ class Predictor:
             d_rot[:, :k] = geo.quat_to_axis_angle(geo.quat_multiply(q_seq[1:], geo.quat_conjugate(q_seq[:-1])))[None]
         lin = np.concatenate([v0[:, None], vec[:, :, 2]], axis=1)
         ang = np.concatenate([w0[:, None], vec[:, :, 3]], axis=1)
+        prob = np.concatenate([np.zeros((len(raw), 1)), 1.0 / (1.0 + np.exp(-raw[..., 12].astype(np.float64)))], axis=1)
+        flat_unless_toppling(d_rot[:, k:], ang[:, k:], prob)  # observed steps keep their observed rotations
         settle(d_pos, d_rot, lin, ang, first=k + 1, dt=self.dt)
         p0 = np.asarray(p0, dtype=np.float64)[:, None]
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)
         orientations = compose_rotations(q0, d_rot)
-        prob = np.concatenate([np.zeros((len(raw), 1)), 1.0 / (1.0 + np.exp(-raw[..., 12].astype(np.float64)))], axis=1)
         return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations))
 
 

@@ -191,3 +191,17 @@ def test_degenerate_and_out_of_range_clouds_are_refused(tmp_path):
         check_cloud(box * 40)
     flat_but_wide = box * (1, 1, 0)  # a sheet: a real table-top object's visible top face, kept
     assert check_cloud(flat_but_wide).shape == (500, 3)
+
+
+def test_no_phantom_tilt_unless_the_model_predicts_a_topple():
+    """Issue 11.3: objects that slide flat ended with a predicted tilt of median 5 deg."""
+    from physdyn_ros.learn.rules import flat_unless_toppling
+
+    d_rot = np.tile([0.02, -0.01, 0.1], (2, 4, 1))
+    ang = np.tile([0.3, -0.2, 1.5], (2, 5, 1))
+    prob = np.array([[0.0, 0.1, 0.2, 0.1, 0.1], [0.0, 0.2, 0.7, 0.9, 0.9]])
+    toppling = flat_unless_toppling(d_rot, ang, prob)
+    assert toppling.tolist() == [False, True]
+    assert np.all(d_rot[0, :, :2] == 0) and np.all(d_rot[0, :, 2] == 0.1)  # yaw kept, tilt gone
+    assert np.all(ang[0, 0] == [0.3, -0.2, 1.5]) and np.all(ang[0, 1:, :2] == 0)  # the given state untouched
+    assert np.all(d_rot[1, :, 0] == 0.02)  # a toppling trajectory keeps its tilt

@@ -150,7 +150,7 @@ def test_kernel_weights_follow_parameter_updates():
 def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     """Predictor._run before issue 13 (without observed states): model.rollout in torch, then frames."""
     from physdyn_ros.learn.frames import c_to_world, integrate_in_world, world_to_c
-    from physdyn_ros.predictor import consistent_topple, settle
+    from physdyn_ros.learn.rules import consistent_topple, flat_unless_toppling, settle
 
     h = headings[:, None]
     with torch.inference_mode(False), torch.no_grad():
@@ -165,10 +165,12 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     lin = np.concatenate([v0[:, None], c_to_world(flat[..., 6:9], h)], axis=1)
     ang = np.concatenate([w0[:, None], c_to_world(flat[..., 9:12], h)], axis=1)
     d_pos, d_rot = flat[..., 0:3].copy(), flat[..., 3:6].copy()
-    settle(d_pos, d_rot, lin, ang)  # the rest rule (issue 11) is not part of the speed-up: applied to both
-    positions, orientations = integrate_in_world(headings, p0, q0, d_pos, d_rot)
     prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
-    return positions, orientations, lin, ang, consistent_topple(prob, orientations)  # also not a speed-up
+    d_rot_w, ang_c = c_to_world(d_rot, h), ang  # the rules (issue 11) are not part of the speed-up: applied to both
+    flat_unless_toppling(d_rot_w, ang_c, prob)
+    settle(d_pos, d_rot_w, lin, ang_c)
+    positions, orientations = integrate_in_world(headings, p0, q0, d_pos, world_to_c(d_rot_w, h))
+    return positions, orientations, lin, ang, consistent_topple(prob, orientations)
 
 
 def test_predictor_equals_the_previous_predictor(shipped):

@@ -33,7 +33,7 @@ import torch
 from .. import geometry as geo
 from . import frames
 from .model import DynamicsModel
-from .rules import consistent_topple, settle
+from .rules import consistent_topple, flat_unless_toppling, settle
 from .windows import SimArrays, sequences
 
 CM = 100.0
@@ -91,6 +91,8 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         heading = seq["heading"].numpy()
         # what the Predictor outputs: the rest rule and topple probabilities consistent with the poses
         vel, angvel = out["vel"].copy(), out["angvel"].copy()
+        prob = np.concatenate([np.zeros((len(idx), 1)), 1.0 / (1.0 + np.exp(-out["topple_logit"]))], axis=1)
+        flat_unless_toppling(d_rot[:, k:], angvel[:, k:], prob)
         settle(d_pos, d_rot, vel, angvel, first=k + 1, dt=sims.dt)
         pos, quat = frames.integrate_in_world(heading, sims.pos[idx, 0], sims.quat[idx, 0], d_pos, d_rot)
         h = heading[:, None]
@@ -98,8 +100,7 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         parts["quat"].append(quat)
         parts["lin_vel"].append(frames.c_to_world(vel, h))
         parts["ang_vel"].append(frames.c_to_world(angvel, h))
-        prob = 1.0 / (1.0 + np.exp(-out["topple_logit"]))
-        parts["topple_prob"].append(consistent_topple(np.concatenate([np.zeros((len(idx), 1)), prob], axis=1), quat))
+        parts["topple_prob"].append(consistent_topple(prob, quat))
     return Trajectories(**{k: np.concatenate(v) for k, v in parts.items()})
 
 

@@ -45,3 +45,17 @@ def settle(d_pos: np.ndarray, d_rot: np.ndarray, lin: np.ndarray, ang: np.ndarra
     d_pos[still_step] = 0.0
     d_rot[still_step] = 0.0
     return rest
+
+
+def flat_unless_toppling(d_rot: np.ndarray, ang: np.ndarray, prob: np.ndarray,
+                         threshold: float = 0.5) -> np.ndarray:
+    """No phantom tilt, in place: a trajectory whose topple probability stays at or below `threshold` keeps the
+    support face it started on, so its rotation increments and angular velocities become pure yaw (the x, y
+    components of world-fixed rotation vectors and of the angular velocity after the first state set to zero;
+    the start orientation's own tilt is kept). d_rot (B, H, 3), ang (B, H+1, 3) with z up; prob (B, H+1) or (B, H).
+    Returns the rows that may topple (left as predicted)."""
+    toppling = np.max(prob, axis=1) > threshold
+    flat = ~toppling
+    d_rot[flat, :, :2] = 0.0
+    ang[flat, 1:, :2] = 0.0
+    return toppling
