@@ -28,16 +28,19 @@ REL = 2e-5
 
 
 def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=None, obs_angvel=None):
-    """rollout_raw of the LSTM as it was before issue 13: _lstm_rollout for every roll-out."""
+    """rollout_raw of the LSTM as it was before issue 13: _lstm_rollout for every roll-out (with the sliding prior
+    of issue 11 when the model has one)."""
     with torch.no_grad():
         fast = m._build_fast()
         x0 = m._inputs(vel0, angvel0, fast)
         x_obs = x0.new_zeros(x0.shape[0], 0, 6) if obs_vel is None else m._inputs(obs_vel, obs_angvel, fast)[:, :steps]
         w_x = fast["w_x"]
         const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])
+        # the differentiable kernel, with the sliding prior of models that have one (the shipped model does)
+        prior = torch.stack(m._prior_decel(feature), -1) if m.cfg.prior == "sliding" else x0.new_zeros(0, 2)
         return model_module._lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
                                           fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps),
-                                          x0.new_zeros(0, 2), fast["in"], fast["out"])
+                                          prior, fast["in"], fast["out"])
 
 
 def close(new: torch.Tensor, ref: torch.Tensor, rel: float = REL) -> bool:

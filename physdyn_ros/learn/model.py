@@ -24,7 +24,7 @@ import torch
 from torch import Tensor, nn
 
 from ..conventions import GRAVITY
-from .prior import MIN_RADIUS, prior_raw, prior_raw_np
+from .prior import MIN_RADIUS, prior_constants, prior_into, prior_raw
 from .sections import known_keys
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
@@ -310,10 +310,7 @@ def _numpy_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, w0: np.ndarray, w: Li
         row = rows[t]
         dot(z, w_head, out=row)
         if prior is not None:  # the sliding prior: on the outputs and, through the gain, on the next input
-            decel, spin, scale_in, scale_out, gain = prior
-            p = np.asarray(prior_raw_np(x, decel, spin, scale_in, scale_out), np.float32)
-            row[:12] += p
-            row[OUT_DIM:] += gain * p[:6]
+            prior_into(row, x, prior)
         if t < observed:
             row[OUT_DIM:] = x_obs[t]
         copyto(x, row[OUT_DIM:])
@@ -616,8 +613,7 @@ class DynamicsModel(nn.Module):
         w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
         args = None
         if prior is not None and len(prior):
-            args = (float(prior[0, 0]), float(prior[0, 1]), kernel["np_in"].tolist(), kernel["np_out"].tolist(),
-                    kernel["np_gain"])
+            args = prior_constants(prior[0, 0], prior[0, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"])
         return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps, args)
 
     def _fused_kernel(self, kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor,

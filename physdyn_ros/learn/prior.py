@@ -92,3 +92,36 @@ def prior_raw_np(x, decel: float, spin_decel: float, scale_in, scale_out, dt: fl
         out[11] = sign * (w_abs * t - 0.5 * spin_decel * t * t)
         out[5] = sign * max(w_abs - spin_decel * dt, 0.0) - wz
     return [o / float(s) for o, s in zip(out, scale_out[:12])]
+
+
+def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT) -> tuple:
+    """The numbers prior_into needs, gathered once per roll-out."""
+    si, so, g = [float(v) for v in scale_in], [float(v) for v in scale_out], [float(v) for v in gain]
+    return (float(decel), float(spin_decel), si[0], si[1], si[5], 1 / so[0], 1 / so[1], 1 / so[5], 1 / so[6],
+            1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt))
+
+
+def prior_into(row, x, c: tuple) -> None:
+    """prior_raw_np added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
+    next input, through the feedback gain); only the six non-zero components, as Python floats (~3 us a step)."""
+    decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt = c
+    vx, vy, wz = float(x[0]) * s0, float(x[1]) * s1, float(x[5]) * s5
+    speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
+    t = min(speed / decel, dt) if decel > 0 else dt
+    dist = speed * t - 0.5 * decel * t * t
+    new = max(speed - decel * dt, 0.0)
+    ux, uy = vx / speed, vy / speed
+    p0, p1 = (new * ux - vx) * o0, (new * uy - vy) * o1
+    row[0] += p0
+    row[1] += p1
+    row[6] += dist * ux * o6
+    row[7] += dist * uy * o7
+    row[13] += g0 * p0
+    row[14] += g1 * p1
+    if wz != 0.0:
+        w_abs, sign = abs(wz), math.copysign(1.0, wz)
+        t = min(w_abs / spin, dt) if spin > 0 else dt
+        p5 = (sign * max(w_abs - spin * dt, 0.0) - wz) * o5
+        row[5] += p5
+        row[11] += sign * (w_abs * t - 0.5 * spin * t * t) * o11
+        row[18] += g5 * p5
