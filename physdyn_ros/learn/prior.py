@@ -73,27 +73,6 @@ def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, scale_in: Tensor, sc
     return torch.cat([d_vel, d_angvel, d_pos, d_rot], -1) / scale_out[:12]
 
 
-def prior_raw_np(x, decel: float, spin_decel: float, scale_in, scale_out, dt: float = DT) -> list:
-    """prior_raw for one input row (6 numbers), in plain Python floats: the batch-1 numpy kernel calls it every
-    step, where a dozen numpy calls on 3-vectors would cost more than the LSTM itself."""
-    vx, vy = float(x[0]) * float(scale_in[0]), float(x[1]) * float(scale_in[1])
-    wz = float(x[5]) * float(scale_in[5])
-    speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
-    out = [0.0] * 12
-    t = min(speed / max(decel, 1e-9), dt)
-    dist = speed * t - 0.5 * decel * t * t
-    new = max(speed - decel * dt, 0.0)
-    ux, uy = vx / speed, vy / speed
-    out[0], out[1] = new * ux - vx, new * uy - vy
-    out[6], out[7] = dist * ux, dist * uy
-    if wz != 0.0:
-        w_abs, sign = abs(wz), math.copysign(1.0, wz)
-        t = min(w_abs / max(spin_decel, 1e-9), dt)
-        out[11] = sign * (w_abs * t - 0.5 * spin_decel * t * t)
-        out[5] = sign * max(w_abs - spin_decel * dt, 0.0) - wz
-    return [o / float(s) for o, s in zip(out, scale_out[:12])]
-
-
 def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT) -> tuple:
     """The numbers prior_into needs, gathered once per roll-out."""
     si, so, g = [float(v) for v in scale_in], [float(v) for v in scale_out], [float(v) for v in gain]
@@ -102,7 +81,7 @@ def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, 
 
 
 def prior_into(row, x, c: tuple) -> None:
-    """prior_raw_np added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
+    """prior_raw added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
     next input, through the feedback gain); only the six non-zero components, as Python floats (~3 us a step)."""
     decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt = c
     vx, vy, wz = float(x[0]) * s0, float(x[1]) * s1, float(x[5]) * s5
