@@ -197,3 +197,35 @@ def test_markers_clear_first_and_have_stable_ids():
     assert all(m.header.frame_id == "world" for m in ms)
     # no extents: only the clear marker and the path
     assert len(trajectory_markers(msg).markers) == 2
+
+
+@pytest.mark.parametrize("layout", ["plain", "padded_bigendian", "bad_datatype"])
+def test_bag_clouds_go_through_the_same_reader(pts, layout):
+    """Issue 15.9: one PointCloud2 reader. A cloud serialized by rclpy and deserialized by rosbags (as the bag
+    tools read it, without rclpy) gives the same points, or the same refusal, as the rclpy message."""
+    from rclpy.serialization import serialize_message
+
+    from physdyn_ros.bag.pushes import cloud_xyz
+    from physdyn_ros.bag.types import deserialize
+
+    pts = pts.copy()
+    pts[3] = np.nan
+    if layout == "plain":
+        msg = xyz_to_cloud(pts, "world")
+    elif layout == "padded_bigendian":
+        msg = make_cloud(pts, [("rgb", 0, "u1"), ("z", 4, "f4"), ("x", 8, "f4"), ("y", 12, "f4")], 20,
+                         bigendian=True, height=2, row_pad=8)
+    else:
+        msg = make_cloud(pts, [("x", 0, "f8"), ("y", 8, "f8"), ("z", 16, "f8")], 24)
+    bag_msg = deserialize(serialize_message(msg), "sensor_msgs/msg/PointCloud2")
+    if layout == "bad_datatype":
+        with pytest.raises(ValueError) as ros_err:
+            cloud_to_xyz(msg)
+        with pytest.raises(ValueError) as bag_err:
+            cloud_xyz(bag_msg)
+        assert str(bag_err.value) == str(ros_err.value) and "expected FLOAT32" in str(ros_err.value)
+        return
+    got = cloud_xyz(bag_msg)
+    assert got.dtype == np.float64
+    np.testing.assert_array_equal(got, cloud_to_xyz(msg).astype(np.float64))
+    np.testing.assert_array_equal(got, pts[np.isfinite(pts).all(axis=1)].astype(np.float64))

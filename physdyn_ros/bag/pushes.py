@@ -23,6 +23,7 @@ import numpy as np
 
 from .. import geometry as geo
 from ..conventions import DT, NUM_POINTS, REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
+from ..perception.pointcloud2 import cloud_to_xyz
 from .reading import open_bag
 from .types import deserialize
 
@@ -239,28 +240,11 @@ def load_session(bag: str | Path, state_topic: str | None = None, twist_topic: s
                    frame_id=frame_id)
 
 
-_PF_FLOAT32 = 7
-
-
 def cloud_xyz(msg) -> np.ndarray:
-    """(N, 3) float64 finite x, y, z of a (rosbags) PointCloud2; fields read by name, any layout / endianness."""
-    fields = {f.name: f for f in msg.fields}
-    if not all(n in fields for n in "xyz"):
-        raise ValueError(f"cloud without x/y/z fields (has {sorted(fields)})")
-    for n in "xyz":
-        if fields[n].datatype != _PF_FLOAT32 or fields[n].count != 1:
-            raise ValueError(f"cloud field {n} is not a single float32")
-    step, row, w, h = int(msg.point_step), int(msg.row_step), int(msg.width), int(msg.height)
-    if w * h == 0:
-        return np.zeros((0, 3))
-    dtype = np.dtype({"names": list("xyz"), "formats": [(">" if msg.is_bigendian else "<") + "f4"] * 3,
-                      "offsets": [int(fields[n].offset) for n in "xyz"], "itemsize": step})
-    buf = np.asarray(msg.data, dtype=np.uint8)
-    if buf.size < row * h or row < w * step:
-        raise ValueError("cloud data is shorter than its row_step * height")
-    view = np.ndarray(shape=(h, w), dtype=dtype, buffer=buf, strides=(row, step)).reshape(-1)
-    pts = np.stack([view[n].astype(np.float64) for n in "xyz"], axis=1)
-    return pts[np.isfinite(pts).all(axis=1)]
+    """(N, 3) float64 finite x, y, z of a (rosbags) PointCloud2, through the package's one cloud reader
+    (physdyn_ros.perception.pointcloud2: fields read by name, any layout / endianness; ValueError naming the
+    problem otherwise)."""
+    return cloud_to_xyz(msg, skip_nans=True).astype(np.float64)
 
 
 def prediction_arrays(msg, received: int) -> Prediction:
