@@ -1,12 +1,14 @@
-"""Rotation helpers (numpy only) and the yaw-equivariant heading of a point cloud.
+"""Rotation helpers (thin wrappers over scipy.spatial.transform.Rotation) and the yaw-equivariant heading of a
+point cloud, topple labels and the up-axis tilt (specific to this project, numpy).
 
-Conventions (see conventions.py): quaternions are (x, y, z, w), unit norm, and map object -> world; an
-axis-angle vector is axis * angle (rad). Every function broadcasts over leading dimensions and computes in
-float64, so chains of rotations stay accurate in float32 data.
+Conventions (see conventions.py): quaternions are (x, y, z, w) (scipy's order), unit norm, and map object ->
+world; an axis-angle vector is axis * angle (rad). Every function broadcasts over leading dimensions and computes
+in float64, so chains of rotations stay accurate in float32 data.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .conventions import TOPPLE_ANGLE
 
@@ -22,6 +24,11 @@ def _f64(x: np.ndarray | list | tuple) -> np.ndarray:
     return np.asarray(x, dtype=np.float64)
 
 
+def _rot(q: np.ndarray | list | tuple) -> Rotation:
+    """scipy Rotation(s) of quaternions (..., 4) (x, y, z, w: scipy's order); normalises, keeps the sign."""
+    return Rotation.from_quat(_f64(q))
+
+
 def quat_normalize(q: np.ndarray) -> np.ndarray:
     """Unit quaternion(s); raises ValueError on a zero or non-finite quaternion."""
     q = _f64(q)
@@ -32,121 +39,62 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a * b (apply b first, then a), (x, y, z, w) order."""
-    a, b = _f64(a), _f64(b)
-    ax, ay, az, aw = np.moveaxis(a, -1, 0)
-    bx, by, bz, bw = np.moveaxis(b, -1, 0)
-    return np.stack([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ], axis=-1)
+    """Hamilton product a * b (apply b first, then a) of unit quaternions (inputs are normalised); broadcasts."""
+    return (_rot(a) * _rot(b)).as_quat()
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    """(-x, -y, -z, w): the inverse rotation of a unit quaternion, without normalising (any quaternion)."""
     q = _f64(q)
     return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
 
 
 def quat_inverse(q: np.ndarray) -> np.ndarray:
-    """Inverse of (not necessarily unit) quaternions."""
-    q = _f64(q)
-    return quat_conjugate(q) / np.sum(q * q, axis=-1, keepdims=True)
+    """Inverse rotations (unit quaternions) of (not necessarily unit) quaternions."""
+    return _rot(q).inv().as_quat()
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors v (..., 3) by unit quaternions q (..., 4)."""
-    q, v = _f64(q), _f64(v)
-    u, w = q[..., :3], q[..., 3:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4); broadcasts."""
+    return _rot(q).apply(_f64(v))
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of unit quaternions."""
-    x, y, z, w = np.moveaxis(_f64(q), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
+    """Rotation matrices (..., 3, 3) of quaternions (normalised first)."""
+    return _rot(q).as_matrix()
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w >= 0) of rotation matrices (..., 3, 3), numerically stable branch per element."""
-    m = _f64(m)
-    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    # Shepperd: compute from the largest of (w, x, y, z) to avoid dividing by a small number.
-    cand = np.stack([1 + 2 * m[..., 0, 0] - tr, 1 + 2 * m[..., 1, 1] - tr, 1 + 2 * m[..., 2, 2] - tr, 1 + tr], -1)
-    k = np.argmax(cand, axis=-1)
-    r = 0.5 * np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300))
-    s = 0.25 / r
-    q = np.empty(m.shape[:-2] + (4,))
-    q0 = np.stack([r, (m[..., 0, 1] + m[..., 1, 0]) * s, (m[..., 0, 2] + m[..., 2, 0]) * s,
-                   (m[..., 2, 1] - m[..., 1, 2]) * s], -1)
-    q1 = np.stack([(m[..., 0, 1] + m[..., 1, 0]) * s, r, (m[..., 1, 2] + m[..., 2, 1]) * s,
-                   (m[..., 0, 2] - m[..., 2, 0]) * s], -1)
-    q2 = np.stack([(m[..., 0, 2] + m[..., 2, 0]) * s, (m[..., 1, 2] + m[..., 2, 1]) * s, r,
-                   (m[..., 1, 0] - m[..., 0, 1]) * s], -1)
-    q3 = np.stack([(m[..., 2, 1] - m[..., 1, 2]) * s, (m[..., 0, 2] - m[..., 2, 0]) * s,
-                   (m[..., 1, 0] - m[..., 0, 1]) * s, r], -1)
-    for i, qi in enumerate((q0, q1, q2, q3)):
-        sel = k == i
-        q[sel] = qi[sel]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., 3:] < 0, -q, q)
+    """Unit quaternions (w >= 0) of rotation matrices (..., 3, 3)."""
+    return Rotation.from_matrix(_f64(m)).as_quat(canonical=True)
 
 
 def axis_angle_to_quat(rv: np.ndarray) -> np.ndarray:
-    """Exponential map: rotation vectors (..., 3) (axis * angle, rad) -> unit quaternions."""
-    rv = _f64(rv)
-    a = np.linalg.norm(rv, axis=-1, keepdims=True)
-    half = 0.5 * a
-    # sin(a/2)/a with its Taylor series near 0 (no division by zero for the identity).
-    k = np.where(a > 1e-6, np.sin(half) / np.where(a > 1e-6, a, 1.0), 0.5 - a * a / 48.0)
-    return np.concatenate([rv * k, np.cos(half)], axis=-1)
+    """Exponential map: rotation vectors (..., 3) (axis * angle, rad) -> unit quaternions (w < 0 beyond pi)."""
+    return Rotation.from_rotvec(_f64(rv)).as_quat()
 
 
 def quat_to_axis_angle(q: np.ndarray) -> np.ndarray:
-    """Logarithm map: unit quaternions -> rotation vectors with angle in [0, pi] (shortest rotation)."""
-    q = _f64(q)
-    q = np.where(q[..., 3:] < 0, -q, q)
-    s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
-    w = q[..., 3:]
-    angle = 2.0 * np.arctan2(s, w)
-    # angle / sin(angle/2) -> 2 / w near the identity.
-    k = np.where(s > 1e-8, angle / np.where(s > 1e-8, s, 1.0), 2.0 / np.maximum(w, 1e-12))
-    return q[..., :3] * k
+    """Logarithm map: quaternions -> rotation vectors with angle in [0, pi] (shortest rotation)."""
+    return _rot(q).as_rotvec()
 
 
 def quat_angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Geodesic angle (rad, in [0, pi]) between orientations a and b."""
-    d = np.abs(np.sum(quat_normalize(a) * quat_normalize(b), axis=-1))
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+    """Geodesic angle (rad, in [0, pi]) between orientations a and b (q and -q are the same orientation)."""
+    return (_rot(a) * _rot(b).inv()).magnitude()
 
 
 def axis_angle_to_matrix(rv: np.ndarray) -> np.ndarray:
     """Rodrigues: rotation vectors (..., 3) -> rotation matrices (..., 3, 3)."""
-    rv = _f64(rv)
-    a2 = np.sum(rv * rv, axis=-1)[..., None, None]
-    a = np.sqrt(a2)
-    small = a2 < 1e-12
-    safe = np.where(small, 1.0, a)
-    # sin(a)/a and (1 - cos a)/a^2 with their series near 0
-    s = np.where(small, 1.0 - a2 / 6.0, np.sin(safe) / safe)
-    c = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(safe)) / np.where(small, 1.0, a2))
-    x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
-    zero = np.zeros_like(x)
-    k = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + s * k + c * (k @ k)
+    return Rotation.from_rotvec(_f64(rv)).as_matrix()
 
 
 def matrix_compose_scan(deltas: np.ndarray, r0: np.ndarray) -> np.ndarray:
     """Rotations after world-fixed increments: R_0 = r0, R_{t+1} = deltas[t] @ R_t.
 
     deltas: (..., H, 3, 3), r0: (..., 3, 3) -> (..., H+1, 3, 3). A parallel prefix scan: log2(H) batched
-    matrix products instead of H sequential ones (a 60-step roll-out composes in ~0.1 ms).
+    matrix products instead of H sequential ones (a 60-step roll-out composes in ~0.1 ms). scipy has no scan;
+    batched matrix products are what numpy does best.
     """
     d = _f64(deltas)
     acc = np.concatenate([np.broadcast_to(_f64(r0)[..., None, :, :], d.shape[:-3] + (1, 3, 3)), d], axis=-3)
@@ -160,27 +108,31 @@ def matrix_compose_scan(deltas: np.ndarray, r0: np.ndarray) -> np.ndarray:
 
 def quat_compose_scan(deltas: np.ndarray, q0: np.ndarray) -> np.ndarray:
     """Quaternion version of matrix_compose_scan: q_0 = q0, q_{t+1} = deltas[t] * q_t; (..., H+1, 4), w >= 0."""
-    scan = matrix_compose_scan(quat_to_matrix(quat_normalize(deltas)), quat_to_matrix(quat_normalize(q0)))
-    return matrix_to_quat(scan)
+    return matrix_to_quat(matrix_compose_scan(quat_to_matrix(quat_normalize(deltas)),
+                                              quat_to_matrix(quat_normalize(q0))))
+
+
+def _about_z(psi: np.ndarray | float) -> Rotation:
+    psi = _f64(psi)
+    return Rotation.from_rotvec(psi[..., None] * np.array([0.0, 0.0, 1.0]))
 
 
 def yaw_matrix(psi: np.ndarray | float) -> np.ndarray:
     """Rotation matrices (..., 3, 3) about +z by psi (rad)."""
-    psi = _f64(psi)
-    c, s = np.cos(psi), np.sin(psi)
-    z, o = np.zeros_like(psi), np.ones_like(psi)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+    return _about_z(psi).as_matrix()
 
 
 def yaw_quat(psi: np.ndarray | float) -> np.ndarray:
-    """Quaternions (..., 4) of a rotation about +z by psi (rad)."""
-    psi = _f64(psi)
-    z = np.zeros_like(psi)
-    return np.stack([z, z, np.sin(0.5 * psi), np.cos(0.5 * psi)], -1)
+    """Quaternions (..., 4) of a rotation about +z by psi (rad): (0, 0, sin(psi/2), cos(psi/2))."""
+    return _about_z(psi).as_quat()
 
 
 def rotate_yaw(v: np.ndarray, psi: np.ndarray | float) -> np.ndarray:
-    """Rotate vectors (..., 3) about +z by psi; psi broadcasts against v[..., 0]."""
+    """Rotate vectors (..., 3) about +z by psi; psi broadcasts against v[..., 0].
+
+    Plain numpy on purpose: a planar rotation of many vectors (whole datasets, the planner's batches) by per-element
+    headings; scipy would build one Rotation per element first (the result is the same: yaw_matrix(psi) @ v).
+    """
     v, psi = _f64(v), _f64(psi)
     c, s = np.cos(psi), np.sin(psi)
     x, y = v[..., 0], v[..., 1]
