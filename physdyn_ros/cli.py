@@ -27,8 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("physdyn_ros.launcher", "start the node suite (sim, perception, predictor) with config/ parameters"),
     "demo": ("physdyn_ros.demo", "start the suite, push objects, compare predicted and true motion"),
     "info": ("physdyn_ros.info", "print the installation: interfaces, shipped model, versions"),
-    "record": ("physdyn_ros.bag.record", "record the suite's topics into a rosbag2 bag (MCAP, split files)"),
-    "replay": ("physdyn_ros.bag.replay", "publish a recorded bag with its original timing"),
+    "record": ("physdyn_ros.nodes.recorder_node", "record the suite's topics into a rosbag2 bag (MCAP, split files)"),
+    "replay": ("physdyn_ros.ros.replay", "publish a recorded bag with its original timing"),
     "report": ("physdyn_ros.bag.report", "predicted vs observed pushes of a bag: errors and a top-view PNG"),
     "bag2dataset": ("physdyn_ros.bag.bag2dataset", "turn recorded pushes into a dataset for fine-tuning"),
 }

@@ -62,7 +62,7 @@ class Listener:
 
 @pytest.mark.parametrize("rate", [1.0, 4.0])
 def test_replay_keeps_bytes_and_timing(rclpy_init, bag, rate):
-    from physdyn_ros.bag.replay import replay
+    from physdyn_ros.ros.replay import replay
 
     listener = Listener(rclpy_init, f"replay_listener_{int(rate)}")
     pub_node = rclpy_init.create_node(f"replay_pub_{int(rate)}")

@@ -29,6 +29,111 @@ def test_learning_core_imports_without_ros_and_pybullet():
     assert "ok []" in run.stdout
 
 
+#: The ROS-free core: top-level packages / modules of physdyn_ros (issue 15.10). The rest (ros, nodes and the
+#: application modules cli, launcher, demo, info) may import anything below them.
+CORE_PARTS = ("shapes", "sim", "data", "learn", "predictor", "planning", "bag", "perception", "geometry",
+              "conventions", "resources")
+#: Lazy imports the rules allow, each with its reason: (importing module, imported module prefix).
+ALLOWED = {
+    # the pybullet re-simulation baseline of `physdyn evaluate` (learn itself never imports pybullet)
+    ("physdyn_ros.learn.baselines", "physdyn_ros.sim"),
+}
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> list[tuple[str, int]]:
+    """Every module `path` imports, at module level or inside a function (lazy), absolute, with its line."""
+    import ast
+
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against the importing package
+                base = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            # `from . import geometry` imports a module too: count `module.name` as well as `module`
+            out += [(module, node.lineno)] + [(f"{module}.{a.name}", node.lineno) for a in node.names]
+    return out
+
+
+def _violations(rules) -> list[str]:
+    found = []
+    for path in sorted((ROOT / "physdyn_ros").rglob("*.py")):
+        src = _module_name(path)
+        for imported, line in _imports(path):
+            for applies, forbidden, why in rules:
+                if not applies(src):
+                    continue
+                hit = next((f for f in forbidden if imported == f or imported.startswith(f + ".")), None)
+                if hit and not any(src == a and imported.startswith(b) for a, b in ALLOWED):
+                    found.append(f"{path.relative_to(ROOT)}:{line} imports {imported} ({why})")
+    return found
+
+
+def _in(*parts: str):
+    prefixes = tuple(f"physdyn_ros.{p}" for p in parts)
+    return lambda mod: any(mod == p or mod.startswith(p + ".") for p in prefixes)
+
+
+LAYER_RULES = [
+    (_in(*CORE_PARTS), ("rclpy", "physdyn_ros.ros", "physdyn_ros.nodes"),
+     "the core runs without ROS and depends on no node"),
+    (_in("learn"), ("pybullet", "pybullet_utils", "physdyn_ros.sim"), "learn runs on a machine without pybullet"),
+    (_in("ros"), ("physdyn_ros.nodes",), "ros/ holds the adapters the nodes use: node -> ros -> core"),
+]
+
+
+def test_layers_hold_for_every_import_including_lazy_ones():
+    """Issue 15.10: an AST scan of every module, function-level (lazy) imports included; the dependency goes
+    nodes -> ros -> core, never back (bag/record.py and bag/replay.py imported the recorder node)."""
+    modules = list((ROOT / "physdyn_ros").rglob("*.py"))
+    assert len(modules) > 50 and all(any(_in(p)(_module_name(m)) for m in modules) for p in CORE_PARTS)
+    assert not _violations(LAYER_RULES), "\n".join(_violations(LAYER_RULES))
+
+
+def test_every_core_module_imports_without_rclpy_and_the_ros_side():
+    """The same rule at run time: with rclpy, physdyn_ros.ros and physdyn_ros.nodes unimportable, every core
+    module (bag and planning included) imports."""
+    names = sorted(_module_name(p) for p in (ROOT / "physdyn_ros").rglob("*.py") if _in(*CORE_PARTS)(_module_name(p)))
+    code = textwrap.dedent(f"""
+        import sys, importlib
+        for blocked in ('rclpy', 'physdyn_ros.ros', 'physdyn_ros.nodes'):
+            sys.modules[blocked] = None
+        for name in {names!r}:
+            importlib.import_module(name)
+        print('ok', len({names!r}))
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=240)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert f"ok {len(names)}" in run.stdout
+
+
+def test_layer_scan_sees_lazy_and_relative_imports(tmp_path, monkeypatch):
+    """The scan itself: a lazy relative import of a node from a core module is caught."""
+    import physdyn_ros  # noqa: F401
+
+    fake_root = tmp_path
+    pkg = fake_root / "physdyn_ros" / "bag"
+    pkg.mkdir(parents=True)
+    (fake_root / "physdyn_ros" / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "x.py").write_text("def f():\n    from ..nodes.recorder_node import record\n    import rclpy\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", fake_root)
+    found = _violations(LAYER_RULES)
+    assert any("x.py:2 imports physdyn_ros.nodes.recorder_node" in f for f in found), found
+    assert any("x.py:3 imports rclpy" in f for f in found), found
+
+
 def test_cli_lists_commands_and_rejects_unknown_ones():
     exe = ROOT / ".venv" / "bin" / "physdyn"
     ok = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60)

@@ -1,10 +1,36 @@
-"""`physdyn record`: record the suite's topics (or `topic:type` ones) into a rosbag2 bag (see docs/bags.md)."""
+"""What `physdyn record` / the recorder node record and how: the options and RecorderConfig (see docs/bags.md).
+
+ROS-free: the recorder itself (rclpy subscriptions, the recording loop, the `physdyn record` command's run) is
+physdyn_ros.nodes.recorder_node, which takes its configuration from here.
+"""
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass, field
+from datetime import datetime
 
 from .types import SUITE_TOPICS
-from .writer import parse_size
+from .writer import MiB, parse_size
+
+
+@dataclass
+class RecorderConfig:
+    """What to record and how (the node's parameters of the same names)."""
+
+    output: str = ""  # bag folder to create; "" = rosbag2_YYYY_MM_DD-HH_MM_SS in the working directory
+    topics: list[str] = field(default_factory=list)  # "name" or "name:pkg/msg/Type"; empty = the suite's topics
+    storage: str = "mcap"  # or "sqlite3"
+    split_duration: float = 10.0  # s of wall time per bag file (0 = no limit)
+    split_size: int = 64 * MiB  # bytes per bag file (0 = no limit)
+    max_bytes: int = 0  # stop cleanly before the bag exceeds this (0 = no limit)
+    min_free: int = 64 * MiB  # refuse to start / stop cleanly below this much free disk space
+    qos_depth: int = 1000  # subscription queue depth (bursts of this many messages are never dropped)
+    max_duration: float = 0.0  # stop after this many seconds (0 = until a signal)
+    discovery_period: float = 0.1  # s between looks at the graph for new publishers
+
+
+def default_output() -> str:
+    return datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,17 +56,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stamp messages with the /clock time instead of the reception time")
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..nodes.recorder_node import RecorderConfig, record
-
+def config_from_args(args: argparse.Namespace) -> RecorderConfig:
+    """The RecorderConfig of `physdyn record`'s options (ValueError for a bad value, before anything starts)."""
     if args.split_duration < 0 or args.duration < 0:
         raise ValueError("--split-duration and --duration must not be negative")
     if args.qos_depth < 1:
         raise ValueError("--qos-depth must be at least 1")
-    config = RecorderConfig(output=args.output, topics=list(args.topics), storage=args.storage,
-                            split_duration=args.split_duration, split_size=parse_size(args.split_size) or 0,
-                            max_bytes=parse_size(args.max_bytes) or 0, min_free=parse_size(args.min_free) or 0,
-                            qos_depth=args.qos_depth, max_duration=args.duration)
-    ros_args = ["--ros-args", "-p", "use_sim_time:=true"] if args.use_sim_time else []
-    return record(config, args=["physdyn-record", *ros_args], announce=lambda s: print(s, flush=True))
-
+    return RecorderConfig(output=args.output, topics=list(args.topics), storage=args.storage,
+                          split_duration=args.split_duration, split_size=parse_size(args.split_size) or 0,
+                          max_bytes=parse_size(args.max_bytes) or 0, min_free=parse_size(args.min_free) or 0,
+                          qos_depth=args.qos_depth, max_duration=args.duration)

@@ -21,13 +21,11 @@ that arrive meanwhile are recorded too. A second signal skips the wait. Crash bo
 """
 from __future__ import annotations
 
-import importlib
+import argparse
 import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
-from datetime import datetime
 from typing import Callable
 
 import rclpy
@@ -39,10 +37,16 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.validate_topic_name import validate_topic_name
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
+from ..bag.record import RecorderConfig, add_arguments, config_from_args, default_output
 from ..bag.types import SUITE_TOPICS, ensure_type
 from ..bag.writer import MiB, BagStorageError, BagWriter
 from ..ros.diagnostics import ERROR, OK, WARN, Diagnostics, Report
+from ..ros.messages import message_class
 from ..ros.params import declare
+
+#: `physdyn record` (physdyn_ros.cli) runs this module: add_arguments (the ROS-free options) and run below.
+__all__ = ["RecorderConfig", "RecorderNode", "add_arguments", "default_output", "main", "message_class",
+           "parse_topics", "record", "run"]
 
 #: After a stop request, keep taking messages until this long without one ...
 DRAIN_IDLE = 0.3
@@ -50,36 +54,6 @@ DRAIN_IDLE = 0.3
 #: after their latest one: a reliable sample lost in transport is repaired at the publisher's next heartbeat
 #: (Fast DDS's default heartbeat period is 3 s).
 REPAIR_WAIT = 3.2
-
-
-@dataclass
-class RecorderConfig:
-    """What to record and how (the node's parameters of the same names)."""
-
-    output: str = ""  # bag folder to create; "" = rosbag2_YYYY_MM_DD-HH_MM_SS in the working directory
-    topics: list[str] = field(default_factory=list)  # "name" or "name:pkg/msg/Type"; empty = the suite's topics
-    storage: str = "mcap"  # or "sqlite3"
-    split_duration: float = 10.0  # s of wall time per bag file (0 = no limit)
-    split_size: int = 64 * MiB  # bytes per bag file (0 = no limit)
-    max_bytes: int = 0  # stop cleanly before the bag exceeds this (0 = no limit)
-    min_free: int = 64 * MiB  # refuse to start / stop cleanly below this much free disk space
-    qos_depth: int = 1000  # subscription queue depth (bursts of this many messages are never dropped)
-    max_duration: float = 0.0  # stop after this many seconds (0 = until a signal)
-    discovery_period: float = 0.1  # s between looks at the graph for new publishers
-
-
-def default_output() -> str:
-    return datetime.now().strftime("rosbag2_%Y_%m_%d-%H_%M_%S")
-
-
-def message_class(msgtype: str):
-    """The rclpy message class of 'pkg/msg/Type' (ValueError if this machine has no Python interface for it)."""
-    package, _, name = msgtype.split("/")
-    try:
-        return getattr(importlib.import_module(f"{package}.msg"), name)
-    except (ImportError, AttributeError):
-        raise ValueError(f"message type {msgtype} has no Python interface on this machine (cannot import "
-                         f"{package}.msg.{name}; build and source the package that defines it)") from None
 
 
 def parse_topics(specs: list[str]) -> dict[str, str | None]:
@@ -329,6 +303,13 @@ def record(config: RecorderConfig | None = None, args: list[str] | None = None,
     if failure:
         raise BagStorageError(failure)
     return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """`physdyn record [TOPIC[:TYPE] ...] [-o BAG] ...`: the recorder with the command line's options."""
+    config = config_from_args(args)
+    ros_args = ["--ros-args", "-p", "use_sim_time:=true"] if args.use_sim_time else []
+    return record(config, args=["physdyn-record", *ros_args], announce=lambda s: print(s, flush=True))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -12,9 +12,14 @@ import argparse
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
-from .reading import check_bag, open_bag
+from ..bag.reading import check_bag, open_bag
+from .messages import message_class
 
 #: Publisher queue depth: deep enough that a burst is never overwritten before the middleware sends it.
 PUB_DEPTH = 1000
@@ -40,11 +45,6 @@ def _topic(name: str) -> str:
 def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, delay: float = 2.0,
            start: float = 0.0, node=None, log=print) -> dict:
     """Publish the bag (rclpy must be initialised; `node` None creates one). Returns counts and timing."""
-    from rclpy.duration import Duration
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    from ..nodes.recorder_node import message_class
-
     if not rate > 0:
         raise ValueError(f"--rate must be positive, got {rate}")
     if delay < 0 or start < 0:
@@ -52,8 +52,6 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
     bag = check_bag(bag)  # before creating a node: FileNotFoundError / BagError for a path that is not a bag
     own = node is None
     if own:
-        import rclpy
-
         node = rclpy.create_node("replay")
     try:
         with open_bag(bag) as reader:
@@ -118,9 +116,6 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
 
 
 def run(args: argparse.Namespace) -> int:
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
     # Plain KeyboardInterrupt on Ctrl-C (the cli prints "interrupted"); rclpy is shut down in any case.
     rclpy.init(args=["physdyn-replay"], signal_handler_options=SignalHandlerOptions.NO)
     try:
