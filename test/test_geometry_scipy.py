@@ -439,3 +439,25 @@ def test_predictor_rotations_equal_the_old_ones():
         want = np.stack(want, 1)
         want = np.where(want[..., 3:] < 0, -want, want)
         assert_close(predictor.compose_rotations(q0, d_rot), want)
+
+
+def test_simulator_object_frame_equals_the_old_conversion():
+    """Simulator.state() turns pybullet's inertial-frame orientation into the object frame as before."""
+    from physdyn_ros.shapes import make_procedural
+    from physdyn_ros.sim.simulator import SimConfig, Simulator
+
+    sim = Simulator(SimConfig())
+    try:
+        sim.spawn(make_procedural("mug", 0))  # a mug's principal axes are not its object axes
+        assert sim._q_inertial[3] < 0.9999
+        q_in = OldSimulator.matrix_to_quat(OldSimulator.quat_to_matrix(sim._q_inertial))
+        rng = np.random.default_rng(10)
+        for q in unit(rng, (20,)):
+            sim.set_pose(np.array([0.0, 0.0, 0.5]), q)
+            _, q_wi = sim.client.getBasePositionAndOrientation(sim.body)
+            assert_same_rotation(np.asarray(q_wi), OldSimulator.quat_mul(q, q_in), 1e-6)  # pybullet stores floats
+            want = OldSimulator.quat_mul(np.asarray(q_wi), OldSimulator.quat_conj(q_in))
+            want = want / np.linalg.norm(want)
+            assert_close(sim.state()[1], -want if want[3] < 0 else want)
+    finally:
+        sim.close()
