@@ -94,19 +94,22 @@ def twist_to_numpy(t: Twist) -> tuple[np.ndarray, np.ndarray]:
 
 
 # -------------------------------------------------------------------------------------------------- rotations
+# scipy.spatial.transform through geometry.py's wrappers; only the project's own rules (yaw of the projected x
+# axis, the topple rule) are written here.
 def quat_to_matrix(q) -> np.ndarray:
     """Rotation matrix of a unit quaternion (x, y, z, w)."""
     return geo.quat_to_matrix(np.asarray(q, dtype=np.float64).reshape(4))
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:
-    return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
+    """Quaternion (x, y, z, w) of a rotation about the table's z axis by `yaw` rad."""
+    return geo.yaw_quat(float(yaw))
 
 
 def quat_angle(q1, q2) -> float:
     """Geodesic angle (rad) between two orientations."""
-    d = abs(float(np.dot(np.asarray(q1, dtype=np.float64), np.asarray(q2, dtype=np.float64))))
-    return 2.0 * math.acos(min(1.0, d))
+    return float(geo.quat_angle_between(np.asarray(q1, dtype=np.float64).reshape(4),
+                                        np.asarray(q2, dtype=np.float64).reshape(4)))
 
 
 def quat_yaw(q) -> float:
