@@ -2,6 +2,7 @@
 
     ros2 launch physdyn_ros physdyn.launch.py [params_file:=/path/to/suite.yaml] [use_sim:=false]
         [namespace:=robot1] [use_sim_time:=true] [log_level:=debug] [dds_profile:=/path/to/profile.xml]
+        [autostart:=false]
 
 The same nodes, names and params file as `physdyn up` (physdyn_ros/launcher.py); test_ros_launch.py checks that
 the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `initial_twist` and
@@ -10,15 +11,42 @@ the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `i
 Dense clouds: the nodes get the Fast DDS profile config/fastdds.xml (a 16 MB shared-memory segment) through
 FASTRTPS_DEFAULT_PROFILES_FILE / FASTDDS_DEFAULT_PROFILES_FILE, unless one is already set in the environment;
 dds_profile:=/path/to/profile.xml names another.
+
+The nodes are managed (lifecycle) nodes. This file starts them with autostart:=false and drives them itself:
+it emits `configure` for each node at start and `activate` when the node reaches inactive from configuring
+(launch_ros ChangeState events), so they end up active as with `physdyn up`. A node whose configure fails stays
+unconfigured, alive, with the reason in its log and on /diagnostics. With autostart:=false (the launch argument)
+nothing is emitted: the nodes wait unconfigured for a lifecycle manager (nav2_lifecycle_manager) or for
+`ros2 lifecycle set /<node> configure` / `activate`.
 """
 import os
 
+import lifecycle_msgs.msg
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
 from launch.conditions import IfCondition
+from launch.events import matches_action
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
-from launch_ros.actions import Node
+from launch_ros.actions import LifecycleNode
+from launch_ros.event_handlers import OnStateTransition
+from launch_ros.events.lifecycle import ChangeState
+
+
+def managed(node):
+    """[activate handler, node, configure event] of one lifecycle node. When the launch argument autostart is
+    true: configure at start, activate once it is configured (a handler of configuring -> inactive only, so a
+    later deactivate is not undone). A node not launched (its condition false) matches no event: nothing happens."""
+    autostart = IfCondition(LaunchConfiguration('autostart'))
+
+    def transition(transition_id):
+        return EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id),
+                         condition=autostart)
+
+    activate = RegisterEventHandler(OnStateTransition(
+        target_lifecycle_node=node, start_state='configuring', goal_state='inactive',
+        entities=[transition(lifecycle_msgs.msg.Transition.TRANSITION_ACTIVATE)]), condition=autostart)
+    return [activate, node, transition(lifecycle_msgs.msg.Transition.TRANSITION_CONFIGURE)]
 
 
 def generate_launch_description():
@@ -26,8 +54,9 @@ def generate_launch_description():
     default_dds_profile = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'fastdds.xml')
     params_file = LaunchConfiguration('params_file')
     dds_profile = LaunchConfiguration('dds_profile')
+    # autostart False: this file drives the transitions (managed() below), the nodes do not start themselves
     common = dict(namespace=LaunchConfiguration('namespace'), output='screen',
-                  parameters=[params_file, {'use_sim_time': LaunchConfiguration('use_sim_time')}],
+                  parameters=[params_file, {'use_sim_time': LaunchConfiguration('use_sim_time'), 'autostart': False}],
                   ros_arguments=['--log-level', LaunchConfiguration('log_level')])
     return LaunchDescription([
         DeclareLaunchArgument('namespace', default_value='', description='ROS namespace of every node'),
@@ -43,10 +72,14 @@ def generate_launch_description():
                 'FASTDDS_DEFAULT_PROFILES_FILE', default_value=default_dds_profile)),
             description='Fast DDS XML profile of the nodes (default: the one already set in the environment, '
                         'else config/fastdds.xml: a 16 MB shared-memory segment for dense clouds)'),
+        DeclareLaunchArgument('autostart', default_value='true',
+                              description='configure and activate the managed nodes; false: leave them unconfigured '
+                                          'for a lifecycle manager (ros2 lifecycle set /<node> configure, activate)'),
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', dds_profile),
         SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', dds_profile),
-        Node(package='physdyn_ros', executable='sim_node', name='sim',
-             condition=IfCondition(LaunchConfiguration('use_sim')), **common),
-        Node(package='physdyn_ros', executable='perception_node', name='perception', **common),
-        Node(package='physdyn_ros', executable='predictor_node', name='predictor', **common),
+        # One line per node (names and executables as physdyn_ros/launcher.py's SPECS; test_ros_launch.py checks)
+        *managed(LifecycleNode(package='physdyn_ros', executable='sim_node', name='sim',
+                               condition=IfCondition(LaunchConfiguration('use_sim')), **common)),
+        *managed(LifecycleNode(package='physdyn_ros', executable='perception_node', name='perception', **common)),
+        *managed(LifecycleNode(package='physdyn_ros', executable='predictor_node', name='predictor', **common)),
     ])

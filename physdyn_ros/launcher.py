@@ -12,6 +12,9 @@ between processes were lost). Set either variable to use your own profile.
 Each node's output is forwarded line by line with its name in front (or written to a log folder). Ctrl-C or
 SIGTERM is forwarded to every node as SIGINT (rclpy shuts down cleanly on it). If a node exits during start-up
 or later, the others are stopped and the command exits non-zero, naming the node and its exit code.
+The nodes are managed (lifecycle) nodes that configure and activate themselves (parameter autostart); the suite
+is ready when every node's <node>/get_state service (lifecycle_msgs/srv/GetState) answers "active" (with
+--no-autostart: "unconfigured", for a lifecycle manager to take over).
 """
 from __future__ import annotations
 
@@ -25,23 +28,47 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import IO, Any, Sequence
+from dataclasses import dataclass
+from typing import IO, Any, Mapping, Sequence
 
 import yaml
 
-#: (node name, executable) in start order; the executable is the module physdyn_ros.nodes.<executable>, the
-#: installed script lib/physdyn_ros/<executable> (ros2 run / launch) and the launch file's `executable`.
-NODES: tuple[tuple[str, str], ...] = (("sim", "sim_node"), ("perception", "perception_node"),
-                                      ("predictor", "predictor_node"))
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of the suite. Adding a node = one entry in SPECS, a `/**/<name>` section in config/suite.yaml, a
+    `lifecycle_node(...)` line in launch/physdyn.launch.py and the script scripts/<executable> (test_ros_launch.py
+    checks that they agree)."""
+
+    #: node name: its params-file section `/**/<name>`, `--nodes` / `--param NAME:...` of `physdyn up`
+    name: str
+    #: the module physdyn_ros.nodes.<executable>, the installed script lib/physdyn_ros/<executable> (ros2 run /
+    #: launch) and the launch file's `executable`; a managed (lifecycle) node with the parameter autostart
+    executable: str
+    #: it loads a checkpoint: `physdyn up --model` sets its model_path
+    model: bool = False
+    #: parameters of the params file's shared section (/**) that it does not declare
+    not_declared: tuple[str, ...] = ()
+
+
+#: The suite in start order.
+SPECS: tuple[NodeSpec, ...] = (
+    NodeSpec("sim", "sim_node", not_declared=("model_path",)),
+    NodeSpec("perception", "perception_node", model=True),
+    NodeSpec("predictor", "predictor_node", model=True),
+)
+#: (node name, executable) in start order.
+NODES: tuple[tuple[str, str], ...] = tuple((spec.name, spec.executable) for spec in SPECS)
 CONFIG_NAME = "suite.yaml"
-#: A node logs "<name>]: ready: ..." once it serves (model loaded and warmed up, object spawned).
-READY_MARK = "]: ready:"
+#: The lifecycle state a node reaches on its own: with autostart, and without (a lifecycle manager takes over).
+GOAL_STATE = {True: "active", False: "unconfigured"}
 #: The Fast DDS profile the nodes get unless the user names one (config/fastdds.xml).
 DDS_PROFILE_NAME = "fastdds.xml"
 #: Fast DDS 2.x reads the first, Fast DDS 3 the second: both are set, to the same file.
 DDS_PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 #: Parameters of the shipped params file's shared section (/**) that a node does not declare.
-NOT_DECLARED = {"sim": {"model_path"}}
+NOT_DECLARED = {spec.name: set(spec.not_declared) for spec in SPECS}
 
 
 def default_config() -> Path:
@@ -122,7 +149,8 @@ def write_overrides(node: str, values: dict[str, Any], folder: Path) -> Path:
 
 #: launch/physdyn.launch.py's arguments and the `physdyn up` options that do the same (a test keeps them in step).
 LAUNCH_ARGUMENTS = {"params_file": "--config", "use_sim": "--no-sim", "namespace": "--namespace",
-                    "use_sim_time": "--use-sim-time", "log_level": "--log-level", "dds_profile": "--dds-profile"}
+                    "use_sim_time": "--use-sim-time", "log_level": "--log-level", "dds_profile": "--dds-profile",
+                    "autostart": "--no-autostart"}
 
 
 def node_command(executable: str, params_file: Path, overrides_file: Path | None = None,
@@ -137,12 +165,73 @@ def node_command(executable: str, params_file: Path, overrides_file: Path | None
     return cmd
 
 
+class LifecycleProbe:
+    """Asks managed nodes for their lifecycle state through <namespace>/<node>/get_state (lifecycle_msgs/srv/
+    GetState), from a private rclpy context on the nodes' ROS_DOMAIN_ID (it leaves the caller's rclpy alone and
+    installs no signal handler)."""
+
+    #: s after which an unanswered request is sent again (a request sent before discovery completes is lost)
+    RESEND = 2.0
+
+    def __init__(self, names: Sequence[str], namespace: str = "", env: Mapping[str, str] | None = None) -> None:
+        import rclpy
+        from lifecycle_msgs.srv import GetState
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        env = os.environ if env is None else env
+        self._request = GetState.Request
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=int(env.get("ROS_DOMAIN_ID", "").strip() or 0),
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(f"physdyn_up_probe_{os.getpid()}", context=self.context, enable_rosout=False,
+                                      start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.clients = {n: self.node.create_client(GetState, f"{namespace}/{n}/get_state") for n in names}
+        self.states: dict[str, str] = {}
+        self._pending: dict[str, tuple[Any, float]] = {}
+
+    def poll(self, names: Sequence[str] | None = None, timeout: float = 0.1) -> dict[str, str]:
+        """Ask `names` (default: all) for their state, spin up to `timeout` s; the states known so far."""
+        now = time.monotonic()
+        for name in names if names is not None else list(self.clients):
+            future, sent = self._pending.get(name, (None, 0.0))
+            if future is not None and future.done():
+                result = future.result()
+                if result is not None:
+                    self.states[name] = result.current_state.label
+                future = None
+            elif future is not None and now - sent > self.RESEND:
+                self.clients[name].remove_pending_request(future)
+                future = None
+            if future is None:
+                self._pending.pop(name, None)
+                if self.clients[name].service_is_ready():
+                    self._pending[name] = (self.clients[name].call_async(self._request()), now)
+        self.executor.spin_once(timeout_sec=timeout)
+        for name, (future, _) in list(self._pending.items()):
+            if future.done() and future.result() is not None:
+                self.states[name] = future.result().current_state.label
+                del self._pending[name]
+        return dict(self.states)
+
+    def close(self) -> None:
+        import rclpy
+
+        for name, (future, _) in self._pending.items():
+            self.clients[name].remove_pending_request(future)
+        self._pending.clear()
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
 class NodeProcess:
-    """One node subprocess whose output is forwarded by a thread that also watches for its ready line."""
+    """One node subprocess whose output is forwarded by a thread."""
 
     def __init__(self, name: str, cmd: list[str], out: IO[str], env: dict[str, str]) -> None:
         self.name, self.cmd, self.out = name, cmd, out
-        self.ready = threading.Event()
         # Own session: a terminal's Ctrl-C reaches only the launcher, which forwards it exactly once.
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
                                      env=env, start_new_session=True)
@@ -152,8 +241,6 @@ class NodeProcess:
     def _pump(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
-            if READY_MARK in line:
-                self.ready.set()
             try:
                 self.out.write(f"[{self.name}] {line}" if self.out in (sys.stdout, sys.stderr) else line)
                 self.out.flush()
@@ -169,15 +256,22 @@ class NodeProcess:
 
 
 class Suite:
-    """The running nodes. Use as a context manager, or call start() / wait_ready() / stop()."""
+    """The running nodes. Use as a context manager, or call start() / wait_ready() / stop().
+
+    autostart False starts the managed nodes unconfigured (parameter autostart:=false), for a lifecycle manager;
+    wait_ready() then waits until each one answers get_state (unconfigured)."""
 
     def __init__(self, config: Path | None = None, overrides: dict[str, Sequence[str]] | None = None,
                  nodes: Sequence[str] | None = None, log_dir: Path | None = None, log_level: str | None = None,
-                 env: dict[str, str] | None = None, namespace: str = "") -> None:
+                 env: dict[str, str] | None = None, namespace: str = "", autostart: bool = True) -> None:
         self.config = Path(config) if config else default_config()
         if not self.config.is_file():
             raise FileNotFoundError(f"params file {self.config} does not exist")
-        self.overrides = overrides or {}
+        self.overrides = {n: list(v) for n, v in (overrides or {}).items()}
+        self.autostart = bool(autostart)
+        if not self.autostart:
+            for spec in SPECS:
+                self.overrides.setdefault(spec.name, []).append("autostart:=false")
         wanted = list(nodes) if nodes else [n for n, _ in NODES]
         unknown = sorted(set(wanted) - {n for n, _ in NODES})
         if unknown:
@@ -200,6 +294,8 @@ class Suite:
         self.dds_profile = dds_profile_env(self.env)
         self.procs: list[NodeProcess] = []
         self._files: list[IO[str]] = []
+        #: the lifecycle state of each node, as its get_state service last answered (wait_ready)
+        self.states: dict[str, str] = {}
 
     def start(self) -> "Suite":
         if self.values:
@@ -219,19 +315,30 @@ class Suite:
     def dead(self) -> NodeProcess | None:
         return next((p for p in self.procs if p.poll() is not None), None)
 
-    def wait_ready(self, timeout: float = 180.0) -> None:
-        """Block until every node logged its ready line. RuntimeError if one exits first or time runs out."""
+    def wait_ready(self, timeout: float = 180.0, stop: threading.Event | None = None) -> bool:
+        """Block until every node's get_state service answers "active" (autostart) or "unconfigured" (autostart
+        off). RuntimeError if a node exits first or time runs out; False if `stop` was set first."""
+        goal = GOAL_STATE[self.autostart]
         deadline = time.monotonic() + timeout
-        while not all(p.ready.is_set() for p in self.procs):
-            d = self.dead()
-            if d is not None:
-                d.thread.join(2.0)  # let its last lines (the reason) through
-                raise RuntimeError(f"node '{d.name}' exited with code {d.poll()} during start-up"
-                                   + (f" (log: {self.log_dir / (d.name + '.log')})" if self.log_dir else ""))
-            if time.monotonic() > deadline:
-                waiting = [p.name for p in self.procs if not p.ready.is_set()]
-                raise RuntimeError(f"node(s) {waiting} not ready after {timeout:.0f} s")
-            time.sleep(0.05)
+        probe = LifecycleProbe([p.name for p in self.procs], self.namespace, self.env)
+        try:
+            while True:
+                waiting = [p.name for p in self.procs if self.states.get(p.name) != goal]
+                if not waiting:
+                    return True
+                if stop is not None and stop.is_set():
+                    return False
+                d = self.dead()
+                if d is not None:
+                    d.thread.join(2.0)  # let its last lines (the reason) through
+                    raise RuntimeError(f"node '{d.name}' exited with code {d.poll()} during start-up"
+                                       + (f" (log: {self.log_dir / (d.name + '.log')})" if self.log_dir else ""))
+                if time.monotonic() > deadline:
+                    states = ", ".join(f"{n}: {self.states.get(n, 'no answer from get_state')}" for n in waiting)
+                    raise RuntimeError(f"node(s) {waiting} not {goal} after {timeout:.0f} s ({states})")
+                self.states.update(probe.poll(waiting))
+        finally:
+            probe.close()
 
     def stop(self, timeout: float = 10.0) -> dict[str, int | None]:
         """SIGINT every node, then SIGTERM / SIGKILL the ones that linger. Returns the exit codes."""
@@ -266,11 +373,12 @@ class Suite:
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
-    o: dict[str, list[str]] = {"sim": [], "perception": [], "predictor": []}
+    o: dict[str, list[str]] = {spec.name: [] for spec in SPECS}
     if args.model:
         path = str(Path(args.model).expanduser().resolve())
-        o["perception"].append(f"model_path:={path}")
-        o["predictor"].append(f"model_path:={path}")
+        for spec in SPECS:
+            if spec.model:
+                o[spec.name].append(f"model_path:={path}")
     if args.real_time_factor is not None:
         o["sim"].append(f"real_time_factor:={float(args.real_time_factor)!r}")
     if args.category:
@@ -293,7 +401,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "params file's model_path, i.e. the shipped model)")
     parser.add_argument("--real-time-factor", type=float, default=None, help="sim speed; 0 = as fast as possible")
     parser.add_argument("--category", default=None, help="shape category the sim spawns at start")
-    parser.add_argument("--nodes", default=None, help="comma-separated subset to start (default: all three)")
+    parser.add_argument("--nodes", default=None, help="comma-separated subset to start (default: all of "
+                        f"{', '.join(n for n, _ in NODES)})")
     parser.add_argument("--param", action="append", metavar="NODE:NAME:=VALUE",
                         help="override one parameter of one node (repeatable)")
     parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log")
@@ -306,7 +415,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "and object_state from your own sensors and tracker)")
     parser.add_argument("--dds-profile", type=Path, default=None, help="Fast DDS XML profile of the nodes (default: "
                         "the one set in the environment, else config/fastdds.xml)")
-    parser.add_argument("--startup-timeout", type=float, default=180.0, help="s to wait for all nodes to be ready")
+    parser.add_argument("--no-autostart", action="store_true", help="start the managed nodes unconfigured "
+                        "(parameter autostart:=false) for a lifecycle manager or `ros2 lifecycle set`; physdyn up then "
+                        "waits until each answers get_state")
+    parser.add_argument("--startup-timeout", type=float, default=180.0, help="s to wait for all nodes to be active "
+                        "(their lifecycle state, asked through <node>/get_state)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -318,7 +431,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.dds_profile.is_file():
             raise FileNotFoundError(f"--dds-profile {args.dds_profile} does not exist")
         env = dict(os.environ, **{var: str(args.dds_profile.resolve()) for var in DDS_PROFILE_VARS})
-    suite = Suite(args.config, overrides_from_args(args), nodes, args.log_dir, args.log_level, env, args.namespace)
+    suite = Suite(args.config, overrides_from_args(args), nodes, args.log_dir, args.log_level, env, args.namespace,
+                  autostart=not args.no_autostart)
     stop = threading.Event()
     received: list[int] = []
 
@@ -332,20 +446,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"physdyn up: starting {', '.join(p.name for p in suite.procs)} with {suite.config}"
               f" (DDS profile: {suite.dds_profile or 'Fast DDS defaults'})", flush=True)
         try:
-            deadline = time.monotonic() + args.startup_timeout
-            while not stop.is_set() and not all(p.ready.is_set() for p in suite.procs):
-                d = suite.dead()
-                if d is not None:
-                    d.thread.join(2.0)
-                    print(f"physdyn up: error: node '{d.name}' exited with code {d.poll()} during start-up",
-                          file=sys.stderr, flush=True)
-                    return 1
-                if time.monotonic() > deadline:
-                    print(f"physdyn up: error: not ready after {args.startup_timeout:.0f} s", file=sys.stderr)
-                    return 1
-                time.sleep(0.05)
-            if not stop.is_set():
-                print("physdyn up: all nodes ready (Ctrl-C to stop)", flush=True)
+            try:
+                ready = suite.wait_ready(args.startup_timeout, stop)
+            except RuntimeError as exc:
+                print(f"physdyn up: error: {exc}", file=sys.stderr, flush=True)
+                return 1
+            if ready and suite.autostart:
+                print("physdyn up: all nodes ready, lifecycle state active (Ctrl-C to stop)", flush=True)
+            elif ready:
+                print("physdyn up: all nodes ready, lifecycle state unconfigured (autostart off): configure and "
+                      "activate them, e.g. `ros2 lifecycle set /<node> configure` then `activate` (Ctrl-C to stop)",
+                      flush=True)
             while not stop.is_set():
                 d = suite.dead()
                 if d is not None:

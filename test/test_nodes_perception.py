@@ -175,7 +175,7 @@ def test_different_bad_clouds_are_each_reported(tiny_model):
     node = rclpy.create_node("bad_cloud_source", context=context)
     try:
         pub = node.create_publisher(PointCloud2, "cloud", 10)
-        assert wait_for(lambda: any("ready:" in ln for ln in lines), 60), "".join(lines)[-2000:]
+        assert wait_for(lambda: any("active:" in ln for ln in lines), 60), "".join(lines)[-2000:]
         assert wait_for(lambda: pub.get_subscription_count() > 0, 20)
         reasons = ("the cloud is empty", "is not the table frame 'world'", "only 10 points left")
         for msg, reason in zip((xyz_to_cloud(np.zeros((0, 3)), "world"),

@@ -51,8 +51,8 @@ def launch_nodes() -> tuple[list[dict], dict[str, object]]:
             else:
                 kw[k.arg] = _value(k.value, consts)
         name = ast.unparse(call.func)
-        if name == "Node":
-            nodes.append(kw)
+        if name in ("Node", "LifecycleNode"):
+            nodes.append(dict(kw, action=name))
         elif name == "DeclareLaunchArgument":
             args[_value(call.args[0], consts)] = kw.get("default_value")
     return nodes, args
@@ -62,6 +62,16 @@ def test_launch_file_starts_what_the_launcher_starts():
     nodes, args = launch_nodes()
     assert [(n["name"], n["executable"]) for n in nodes] == list(NODES)
     assert {n["package"] for n in nodes} == {"physdyn_ros"}
+    # managed nodes: launched as launch_ros LifecycleNode, each wrapped by managed() (configure at start, activate
+    # once configured), with autostart off (the launch file drives the transitions, its autostart argument says
+    # whether)
+    assert {n["action"] for n in nodes} == {"LifecycleNode"}
+    text = LAUNCH.read_text()
+    assert text.count("*managed(LifecycleNode(") == len(NODES)
+    for needed in ("TRANSITION_CONFIGURE", "TRANSITION_ACTIVATE", "start_state='configuring'",
+                   "goal_state='inactive'", "IfCondition(LaunchConfiguration('autostart'))"):
+        assert needed in text, needed
+    assert args["autostart"] == "true"
     # every node gets the same params file, whose default is the installed config/suite.yaml, the launch
     # arguments' use_sim_time, namespace and log level
     for n in nodes:
@@ -69,6 +79,7 @@ def test_launch_file_starts_what_the_launcher_starts():
         assert n["namespace"] == ("LaunchConfiguration", "namespace")
         assert n["ros_arguments"] == ["--log-level", ("LaunchConfiguration", "log_level")]
         assert "'use_sim_time': LaunchConfiguration('use_sim_time')" in str(n["parameters"][1])
+        assert "'autostart': False" in str(n["parameters"][1])
     # the launch file's arguments are exactly those `physdyn up` offers (issue 15.4)
     assert set(args) == set(LAUNCH_ARGUMENTS)
     import argparse
@@ -190,7 +201,7 @@ def test_up_starts_the_suite_and_stops_on_ctrl_c(tiny_model):
             if "all nodes ready" in line:
                 break
         assert any("all nodes ready" in ln for ln in lines), "".join(lines)[-3000:]
-        assert any(ln.startswith("[predictor]") and "ready:" in ln for ln in lines)
+        assert any(ln.startswith("[predictor]") and "active:" in ln for ln in lines)
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
     finally:

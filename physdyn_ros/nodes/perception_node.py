@@ -11,6 +11,10 @@ A thin ROS adapter over physdyn_ros.perception (the ROS-free core):
    perception.Tracker (`<id_prefix><n>`, stable while objects move);
 4. Predictor.encode per object; features stamped with the cloud's stamp in the table frame; outlines on
    `object_markers`.
+
+A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the encoder (the model), the tf listener and the
+publishers are made on configure and released on cleanup; the cloud subscription exists only while active (clouds
+are not processed otherwise). With `autostart` (default) it configures and activates itself at start.
 """
 from __future__ import annotations
 
@@ -20,7 +24,6 @@ import zlib
 
 import numpy as np
 from geometry_msgs.msg import Point
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
@@ -36,6 +39,7 @@ from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
+from ..ros.lifecycle import ManagedNode
 from ..ros.throttle import ReasonThrottle
 
 #: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, a slow callback never builds
@@ -61,16 +65,16 @@ def tf2_available() -> bool:
     return True
 
 
-class PerceptionNode(Node):
+class PerceptionNode(ManagedNode):
     """Subscribes `cloud`; publishes `shape_feature` (one per object) and `object_markers`."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("perception", **kwargs)
-        model_path = declare(self, "model_path", "", "checkpoint to load; empty = the shipped default model",
-                             read_only=True)
-        device = declare(self, "device", "cpu", "torch device for the encoder", read_only=True)
-        threads = declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription)",
-                          read_only=True, low=1, high=256)
+        declare(self, "model_path", "", "checkpoint, loaded on configure (cleanup, set, configure: another model); "
+                "empty = the shipped default model")
+        declare(self, "device", "cpu", "torch device for the encoder (read on configure)")
+        declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription; read on "
+                "configure)", low=1, high=256)
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of the table (z up, plane "
                                         "z = 0); clouds are transformed into it and features published in it",
                                         read_only=True)
@@ -78,8 +82,8 @@ class PerceptionNode(Node):
                 "(used instead of tf for that frame); empty = none")
         declare(self, "sensor_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "pose of sensor_frame in "
                 "table_frame: x, y, z (m), qx, qy, qz, qw (as static_transform_publisher takes it)")
-        use_tf = declare(self, "use_tf", True, "look up other frames with tf2 when tf2_ros can be imported",
-                         read_only=True)
+        declare(self, "use_tf", True, "look up other frames with tf2 when tf2_ros can be imported (read on "
+                "configure)", read_only=True)
         declare(self, "tf_timeout", 0.05, "s to wait for a tf transform at the cloud's stamp", low=0.0, high=5.0)
         declare(self, "single_object", True, "true: one feature per cloud, for the object tracked as object_id "
                 "(the largest when first seen or lost); false: one feature per object, ids <id_prefix><n>")
@@ -121,10 +125,8 @@ class PerceptionNode(Node):
         declare(self, "min_points", d.min_points, "clusters with fewer points are not objects; fewer points in "
                 "all: no feature (warning)", low=1)
         declare(self, "publish_markers", True, "publish each object's outline and id on object_markers")
-        parse_transform(self.get_parameter("sensor_transform").value)  # a bad one stops the node at start
-        self.predictor = load_predictor(self, model_path, device, threads)
+        self.predictor = None  # the encoder: loaded on configure, released on cleanup
         self._rng = np.random.default_rng(0)
-        self._warm_up()
         self.tracker = Tracker()
         self.processed = 0  # clouds that gave at least one feature
         self.published = 0  # features
@@ -133,26 +135,49 @@ class PerceptionNode(Node):
         self._warn = ReasonThrottle(self.get_logger().warning, 2.0)
         self._note = ReasonThrottle(self.get_logger().info, 10.0)
         self._tf_buffer = self._tf_listener = None
-        if use_tf and tf2_available():
+        self.refused = 0
+        self._refusals = RefusalWindow()
+        self.diagnostics = Diagnostics(self, "clouds", self._diagnose)
+        self.start()  # autostart: configure + activate
+
+    # -------------------------------------------------------------------------------------------- lifecycle
+    def configure(self) -> None:
+        p = self.get_parameter
+        parse_transform(p("sensor_transform").value)  # a bad one: configure fails with the reason
+        self.config()  # the segmentation settings must make a SceneConfig
+        self.predictor = load_predictor(self, p("model_path").value, p("device").value, int(p("num_threads").value))
+        self._warm_up()
+        self.tracker = Tracker()
+        if p("use_tf").value and tf2_available():
             import tf2_ros
 
             self._tf_buffer = tf2_ros.Buffer()
             # Its own node and thread: a lookup may wait (tf_timeout) inside this node's cloud callback.
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, None, spin_thread=True)
-        self.pub = self.create_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, "object_markers", MARKER_QOS)
-        self.refused = 0
-        self._refusals = RefusalWindow()
-        self.diagnostics = Diagnostics(self, "clouds", self._diagnose)
-        self.create_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
+        self.pub = self.configured_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
+        self.pub_markers = self.configured_publisher(MarkerArray, "object_markers", MARKER_QOS)
+
+    def activate(self) -> None:
+        self.active_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
+
+    def cleanup(self) -> None:
+        self._stop_tf()
+        self._tf_buffer = None
+        self.tracker = Tracker()
+        self.predictor = None  # the encoder's tensors go with the last reference
+        import gc
+
+        gc.collect()
+
+    def describe(self) -> str:
+        use_tf = self.get_parameter("use_tf").value
         frames = "tf2" if self._tf_buffer is not None else ("no tf2 (tf2_ros not importable)" if use_tf else
                                                             "tf off (use_tf false)")
         sensor = self.get_parameter("sensor_frame").value
-        self.get_logger().info(
-            f"ready: clouds in '{self.table_frame}'" + (f", '{sensor}' (sensor_transform)" if sensor else "")
-            + f", other frames: {frames}; "
-            + ("single object" if self.get_parameter("single_object").value else "several objects")
-            + f"; model {self.predictor.model_id}")
+        return (f"clouds in '{self.table_frame}'" + (f", '{sensor}' (sensor_transform)" if sensor else "")
+                + f", other frames: {frames}; "
+                + ("single object" if self.get_parameter("single_object").value else "several objects")
+                + f"; model {self.predictor.model_id if self.predictor is not None else '-'}")
 
     def _warm_up(self) -> None:
         """One synthetic table with objects through segmentation, tracking and encoding before `ready`: the first
@@ -268,7 +293,8 @@ class PerceptionNode(Node):
     def _diagnose(self) -> Report:
         level = self._refusals.level(self.refused)
         return level, (f"last refusal: {self.last_error}" if level != OK else "encoding clouds"), {
-            "model_id": self.predictor.model_id, "clouds_with_features": self.processed,
+            "model_id": self.predictor.model_id if self.predictor is not None else "",
+            "model_loaded": self.predictor is not None, "clouds_with_features": self.processed,
             "features": self.published, "clouds_refused": self.refused, "last_refusal": self.last_error,
             "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks)}
 
@@ -300,6 +326,10 @@ class PerceptionNode(Node):
         self.get_logger().debug(f"{len(features)} feature(s) from {cloud_size(msg)} points in {self.last_ms:.1f} ms")
 
     def destroy_node(self) -> None:
+        self._stop_tf()  # destroyed while configured: the listener's thread and node still go
+        super().destroy_node()
+
+    def _stop_tf(self) -> None:
         listener, self._tf_listener = self._tf_listener, None
         if listener is not None:  # stop its thread and its own node (tf2_ros only does so when collected)
             if getattr(listener, "executor", None) is not None:
@@ -309,7 +339,6 @@ class PerceptionNode(Node):
                 thread.join(2.0)
             if getattr(listener, "node", None) is not None:
                 listener.node.destroy_node()
-        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

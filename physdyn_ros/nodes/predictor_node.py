@@ -13,7 +13,12 @@ Services
   plan_push (PlanPush): the push (velocity, impulse, contact point) that brings an object to a goal pose
                         (physdyn_ros.planning: CEM over batched roll-outs, bounded by plan_time_budget).
 
-The model is loaded once at start; a checkpoint that cannot be loaded stops the node with a non-zero exit.
+A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the model and the planner are loaded on configure
+and released on cleanup; publishers, services and the refinement timer exist from configure to cleanup,
+subscriptions from activate to deactivate; the services answer only while active (otherwise success=false,
+"node is inactive (lifecycle state ...)"). With `autostart` (default) the node configures and activates itself at
+start, and a checkpoint that cannot be loaded stops the executable with a non-zero exit; with autostart false a
+failed configure leaves it unconfigured and alive, with the reason logged and on /diagnostics.
 Everything runs on one SingleThreadedExecutor: under a MultiThreadedExecutor the callbacks contended for the GIL
 (each took twice as long) and twists queued ~100 ms behind them (ros2/rclpy#1452). Nothing blocks: a twist
 whose object_state of the push instant has not arrived yet is parked until that state arrives or `state_wait`
@@ -30,8 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Path
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
@@ -40,6 +43,7 @@ from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
 from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
+from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
@@ -98,16 +102,16 @@ class PendingRefinement:
     published: int = 0  # observed states used by the last re-prediction published
 
 
-class PredictorNode(Node):
+class PredictorNode(ManagedNode):
     """Publishes a predicted trajectory for every initial_twist, and answers predict_trajectory."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("predictor", **kwargs)
-        model_path = declare(self, "model_path", "", "checkpoint to load once at start; empty = the shipped "
-                             "default model", read_only=True)
-        device = declare(self, "device", "cpu", "torch device", read_only=True)
-        threads = declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription)",
-                          read_only=True, low=1, high=256)
+        declare(self, "model_path", "", "checkpoint, loaded on configure (cleanup, set, configure: another model); "
+                "empty = the shipped default model")
+        declare(self, "device", "cpu", "torch device (read on configure)")
+        declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription; read on "
+                "configure)", low=1, high=256)
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
                                         "output; inputs in another frame are rejected (no tf lookup)",
                                         read_only=True)
@@ -144,12 +148,9 @@ class PredictorNode(Node):
         declare(self, "plan_table_bounds", [-1.0, 1.0, -1.0, 1.0], "x_min, x_max, y_min, y_max (m) of the table "
                 "top in table_frame: starts, goals and predicted paths must stay inside")
 
-        self.predictor = load_predictor(self, model_path, device, threads)
-        self.model_id: str = self.predictor.model_id
-        from ..planning import PushPlanner
-
-        self.planner = PushPlanner(self.predictor)
-        self.planner.warm_up()  # timing calibration and first-call costs, before the node reports ready
+        self.predictor = None  # the model (Predictor) and planner: loaded on configure, released on cleanup
+        self.planner = None
+        self.model_id: str = ""
         self._lock = threading.Condition()
         self._features: dict[str, deque[ShapeFeature]] = {}
         self._latest_feature_id: str | None = None
@@ -163,34 +164,69 @@ class PredictorNode(Node):
         self._error_log = ReasonThrottle(self.get_logger().error, 1.0)
         self._warn_log = ReasonThrottle(self.get_logger().warning, 1.0)
 
-        # One group: the node runs on a single thread (main()); the groups only matter to a caller that adds
-        # this node to a MultiThreadedExecutor, where roll-outs must still not run concurrently.
-        self._infer = MutuallyExclusiveCallbackGroup()
+        # One group, the node's default one, which also runs the lifecycle transitions: the node runs on a single
+        # thread (main()); the group only matters to a caller that adds this node to a MultiThreadedExecutor,
+        # where roll-outs must still not run concurrently, nor a cleanup release the model under a roll-out.
+        self._infer = self.default_callback_group
         self._data = self._infer
-        self.pub_traj = self.create_publisher(PredictedTrajectory, "predicted_trajectory", LATCHED)
-        self.pub_path = self.create_publisher(Path, "predicted_path", LATCHED)
-        self.pub_markers = self.create_publisher(MarkerArray, "predicted_markers", LATCHED)
-        self.create_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
-                                 callback_group=self._data)
-        self.create_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._data)
-        self.create_subscription(ObjectState, "observed_state", self._on_observed, STATE_QOS,
-                                 callback_group=self._data)
-        self.create_subscription(TwistStamped, "initial_twist", self._on_twist, 10, callback_group=self._infer)
-        self.create_service(PredictTrajectory, "predict_trajectory", self._on_service, callback_group=self._infer)
-        self.create_service(PlanPush, "plan_push", self._on_plan, callback_group=self._infer)
-        self.create_timer(0.05, self._on_refine_timer, callback_group=self._infer)
         self._latency_ms: deque[float] = deque(maxlen=100)
         self._refusals = RefusalWindow()
         self.diagnostics = Diagnostics(self, "predictions", self._diagnose, callback_group=self._infer)
-        self.get_logger().info(f"ready: model {self.model_id}, horizon {self.get_parameter('horizon').value}, "
-                               f"frame '{self.table_frame}'")
+        self.start()  # autostart: configure + activate
+
+    # -------------------------------------------------------------------------------------------- lifecycle
+    def configure(self) -> None:
+        p = self._param
+        self.predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")))
+        self.model_id = self.predictor.model_id
+        from ..planning import PushPlanner
+
+        self.planner = PushPlanner(self.predictor)
+        self.planner.warm_up()  # timing calibration and first-call costs, before the node serves
+        self.pub_traj = self.configured_publisher(PredictedTrajectory, "predicted_trajectory", LATCHED)
+        self.pub_path = self.configured_publisher(Path, "predicted_path", LATCHED)
+        self.pub_markers = self.configured_publisher(MarkerArray, "predicted_markers", LATCHED)
+        self.configured_service(PredictTrajectory, "predict_trajectory", self._on_service, callback_group=self._infer)
+        self.configured_service(PlanPush, "plan_push", self._on_plan, callback_group=self._infer)
+        self.configured_timer(0.05, self._on_refine_timer, callback_group=self._infer)
+
+    def activate(self) -> None:
+        self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
+                                 callback_group=self._data)
+        self.active_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._data)
+        self.active_subscription(ObjectState, "observed_state", self._on_observed, STATE_QOS,
+                                 callback_group=self._data)
+        self.active_subscription(TwistStamped, "initial_twist", self._on_twist, 10, callback_group=self._infer)
+
+    def deactivate(self) -> None:
+        with self._lock:  # pushes in flight are dropped: nothing is published while inactive
+            self._parked.clear()
+            self._pending.clear()
+
+    def cleanup(self) -> None:
+        with self._lock:
+            self._features.clear()
+            self._states.clear()
+            self._observed.clear()
+            self._latest_feature_id = None
+            self._parked.clear()
+            self._pending.clear()
+        self.predictor = self.planner = None  # the model's tensors go with the last references
+        self.model_id = ""
+        import gc
+
+        gc.collect()
+
+    def describe(self) -> str:
+        return f"model {self.model_id}, horizon {self._param('horizon')}, frame '{self.table_frame}'"
 
     def _diagnose(self) -> Report:
         level = self._refusals.level(self.rejected)
         lat = np.asarray(self._latency_ms) if self._latency_ms else np.zeros(1)
         message = f"last refusal: {self.last_error}" if level != OK else "predicting"
         return level, message, {
-            "model_id": self.model_id, "predictions": self.predictions, "refusals": self.rejected,
+            "model_id": self.model_id, "model_loaded": self.predictor is not None,
+            "predictions": self.predictions, "refusals": self.rejected,
             "last_refusal": self.last_error, "latency_p50_ms": f"{np.percentile(lat, 50):.2f}",
             "latency_max_ms": f"{lat.max():.2f}", "objects_with_features": len(self._features),
             "parked_twists": len(self._parked), "pending_refinements": len(self._pending)}

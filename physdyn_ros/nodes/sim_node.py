@@ -1,8 +1,15 @@
 """Simulated table: one object in pybullet (the same core as data generation), pushed through a service.
 
 Publishes the object's cloud on `cloud`, its true state on `object_state` / `odom` / `object_pose`, and the
-velocities right after a push on `initial_twist`. Every pybullet call runs in one MutuallyExclusiveCallbackGroup,
-so one thread at a time touches the simulator (pybullet clients are not thread-safe).
+velocities right after a push on `initial_twist`. Every pybullet call runs in one MutuallyExclusiveCallbackGroup
+(the node's default group, which also runs the lifecycle transitions), so one thread at a time touches the
+simulator (pybullet clients are not thread-safe).
+
+A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the pybullet simulator is created and the start
+object spawned on configure, and closed on cleanup; publishers and services exist from configure to cleanup; the
+simulation publishes (state, cloud, clock) and pushes only while active, and a service call otherwise answers
+success=false with the lifecycle state. Deactivating during a push ends it and holds the object still.
+With `autostart` (default) it configures and activates itself at start.
 
 The cloud is in the table frame, or (cloud_frame: camera) in the simulated camera's optical frame (REP 103: z
 forward, x right, y down) named camera_frame, whose pose is published on /tf_static when tf2_msgs is importable
@@ -22,8 +29,6 @@ import time
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from nav_msgs.msg import Odometry
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
@@ -36,6 +41,7 @@ from ..perception.frames import RigidTransform, camera_optical_pose
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, quat_to_matrix, twist, vector3, xyz_to_numpy
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
+from ..ros.lifecycle import ManagedNode
 from ..ros.params import declare
 from ..ros.run import run_node
 from ..ros.trajectory import object_state
@@ -57,7 +63,7 @@ TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability
 CLOUD_FRAMES = ("table", "camera")
 
 
-class SimNode(Node):
+class SimNode(ManagedNode):
     """Stand-in for the real table: spawn, push and watch one simulated object."""
 
     def __init__(self, **kwargs) -> None:
@@ -78,8 +84,8 @@ class SimNode(Node):
         self.friction: float = declare(self, "friction", 0.5, "effective Coulomb friction coefficient with the "
                                        "table", low=0.0, high=10.0)
         declare(self, "collision", "auto", "collision geometry: 'auto' (hull for convex shapes, cached V-HACD "
-                "decomposition otherwise) or 'hull' (convex hull for everything; faster first spawn)",
-                read_only=True)
+                "decomposition otherwise) or 'hull' (convex hull for everything; faster first spawn); read on "
+                "configure", read_only=True)
         self.rate: float = declare(self, "rate", 15.0, "Hz at which the state is published while nothing moves "
                                    "(every simulated frame is published during a push)", read_only=True,
                                    low=0.1, high=1000.0)
@@ -106,8 +112,6 @@ class SimNode(Node):
         self.camera_frame: str = declare(self, "camera_frame", "camera_optical_frame", "name of the camera's "
                                          "optical frame (z forward, x right, y down) for cloud_frame camera",
                                          read_only=True)
-        if self.cloud_frame == "camera" and (not self.camera_frame or self.camera_frame == self.table_frame):
-            raise ValueError(f"camera_frame must be a name other than table_frame, got {self.camera_frame!r}")
         declare(self, "max_push_time", 10.0, "s of simulated time after which a push ends even if the object "
                 "still moves", low=DT, high=600.0)
         declare(self, "max_linear_speed", 10.0, "pushes giving a faster centre of mass are rejected, m/s",
@@ -116,9 +120,7 @@ class SimNode(Node):
         self.publish_clock: bool = declare(self, "publish_clock", False, "publish the simulation time on /clock",
                                            read_only=True)
 
-        from ..sim import SimConfig, Simulator  # pybullet is imported here, once per process
-
-        self.sim = Simulator(SimConfig(collision=self.get_parameter("collision").value))
+        self.sim = None  # the pybullet Simulator: made on configure, closed on cleanup
         self.object_id = self.default_object_id
         self.spawn_pose = (0.0, 0.0, 0.0)
         self._cloud_obj = np.zeros((0, 3))  # surface samples in the object frame
@@ -134,44 +136,59 @@ class SimNode(Node):
         self._sim_ns = self.get_clock().now().nanoseconds
         self._wall_last = time.monotonic()
 
-        self._group = MutuallyExclusiveCallbackGroup()
-        self.pub_state = self.create_publisher(ObjectState, "object_state", STATE_QOS)
-        self.pub_odom = self.create_publisher(Odometry, "odom", 50)
-        self.pub_pose = self.create_publisher(PoseStamped, "object_pose", 50)
-        self.pub_twist = self.create_publisher(TwistStamped, "initial_twist", 10)
-        self.pub_cloud = self.create_publisher(PointCloud2, "cloud", CLOUD_QOS)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10) if self.publish_clock else None
+        self._group = self.default_callback_group  # pybullet and the lifecycle transitions: one at a time
         self._camera_pose: RigidTransform | None = None  # last pose sent on /tf_static
+        self.pub_tf_static = self.pub_clock = None
+        self.refused = 0
+        self.last_error = ""
+        self._refusals = RefusalWindow()
+        self.diagnostics = Diagnostics(self, "simulation", self._diagnose, callback_group=self._group)
+        self.start()  # autostart: configure + activate
+
+    # -------------------------------------------------------------------------------------------- lifecycle
+    def configure(self) -> None:
+        if self.cloud_frame == "camera" and (not self.camera_frame or self.camera_frame == self.table_frame):
+            raise ValueError(f"camera_frame must be a name other than table_frame, got {self.camera_frame!r}")
+        from ..sim import SimConfig, Simulator  # pybullet is imported here, once per process
+
+        self.sim = Simulator(SimConfig(collision=self.get_parameter("collision").value))
+        g = self._group
+        self.pub_state = self.configured_publisher(ObjectState, "object_state", STATE_QOS)
+        self.pub_odom = self.configured_publisher(Odometry, "odom", 50)
+        self.pub_pose = self.configured_publisher(PoseStamped, "object_pose", 50)
+        self.pub_twist = self.configured_publisher(TwistStamped, "initial_twist", 10)
+        self.pub_cloud = self.configured_publisher(PointCloud2, "cloud", CLOUD_QOS)
+        self.pub_clock = self.configured_publisher(Clock, "/clock", 10) if self.publish_clock else None
+        self._camera_pose = None
         self.pub_tf_static = None
         if self.cloud_frame == "camera":
             try:
                 from tf2_msgs.msg import TFMessage
 
-                self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+                self.pub_tf_static = self.configured_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
             except ImportError:  # ROS from PyPI wheels has no tf2_msgs: the perception node takes a parameter
                 pass
-        g = self._group
         # At real_time_factor 0 the step timer fires every millisecond and simulates a batch of frames per tick,
         # so services (reset, rejected pushes) are still answered between batches.
         step_period = 0.001 if self.rtf == 0 else DT / self.rtf / 2
-        self._step_timer = self.create_timer(step_period, self._on_step, callback_group=g)
+        self._step_timer = self.configured_timer(step_period, self._on_step, callback_group=g)
         self._step_timer.cancel()
 
         p = self.get_parameter
         self.spawn(self.default_object_id, p("category").value, p("mesh_path").value, p("shape_seed").value,
                    p("scale").value, tuple(p("spawn_pose").value), self.friction)
 
-        self.refused = 0
-        self.last_error = ""
-        self._refusals = RefusalWindow()
-        self.diagnostics = Diagnostics(self, "simulation", self._diagnose, callback_group=g)
-        self.create_service(PushObject, "push", self._on_push, callback_group=g)
-        self.create_service(Trigger, "reset", self._on_reset, callback_group=g)
-        self.create_service(SpawnObject, "spawn_object", self._on_spawn, callback_group=g)
-        self.create_timer(1.0 / self.rate, self._on_idle, callback_group=g)
+        self.configured_service(PushObject, "push", self._on_push, callback_group=g)
+        self.configured_service(Trigger, "reset", self._on_reset, callback_group=g)
+        self.configured_service(SpawnObject, "spawn_object", self._on_spawn, callback_group=g)
+        self.configured_timer(1.0 / self.rate, self._on_idle, callback_group=g)
         if self.cloud_rate > 0:
-            self.create_timer(1.0 / self.cloud_rate, self._on_cloud, callback_group=g)
+            self.configured_timer(1.0 / self.cloud_rate, self._on_cloud, callback_group=g)
+
+    def activate(self) -> None:
+        self._publish_state(self._idle_stamp())
         if self.cloud_frame == "camera":
+            self._camera_pose = None  # sent (again) on /tf_static now that the publisher is enabled
             pose = self.camera_pose()
             self.get_logger().info(
                 f"cloud in the camera frame '{self.camera_frame}': "
@@ -179,15 +196,41 @@ class SimNode(Node):
                    "tf2_msgs is not available, nothing is published on /tf_static")
                 + f"; without tf2 give the perception node sensor_frame:={self.camera_frame} "
                 f"sensor_transform:={[round(v, 6) for v in pose.as_list()]}")
-        self.get_logger().info(
-            f"ready: {self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
-            f"'{self.table_frame}', real_time_factor {self.rtf:g}")
+
+    def describe(self) -> str:
+        return (f"{self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
+                f"'{self.table_frame}', real_time_factor {self.rtf:g}")
+
+    def deactivate(self) -> None:
+        if self._running:
+            self.get_logger().info(f"push {self.push_id} stopped by deactivate: the object is held still")
+            self._end_push()
+            self.sim.set_velocity(np.zeros(3), np.zeros(3))
+
+    def cleanup(self) -> None:
+        self._running = False  # its timers are destroyed after this
+        sim, self.sim = self.sim, None
+        if sim is not None:
+            sim.close()
+        self._visual = None
+        self._cloud_obj = np.zeros((0, 3))
+        self.pub_tf_static = self.pub_clock = None
+
+    def destroy_node(self) -> None:
+        if self.sim is not None:  # destroyed while configured: the pybullet client still goes
+            self.sim.close()
+        super().destroy_node()
 
     def _diagnose(self) -> Report:
         level = self._refusals.level(self.refused)
+        if self.sim is None:
+            return level, "no simulator (unconfigured)", {"object_id": self.object_id, "simulator": False,
+                                                          "pushes": self.push_id, "refusals": self.refused,
+                                                          "last_refusal": self.last_error}
         return level, (f"last refusal: {self.last_error}" if level != OK else
                        "pushing" if self._running else "at rest"), {
-            "object_id": self.object_id, "shape": self.sim.shape.name, "mass_kg": f"{self.sim.mass:.4f}",
+            "object_id": self.object_id, "simulator": True, "shape": self.sim.shape.name,
+            "mass_kg": f"{self.sim.mass:.4f}",
             "pushes": self.push_id, "push_running": self._running, "refusals": self.refused,
             "last_refusal": self.last_error, "real_time_factor": self.rtf}
 
@@ -485,10 +528,6 @@ class SimNode(Node):
         res.mass = float(self.sim.mass)
         self.get_logger().info(res.message)
         return res
-
-    def destroy_node(self) -> None:
-        self.sim.close()
-        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,6 +1,7 @@
 """`/diagnostics` (diagnostic_msgs/DiagnosticArray) from a node, at a steady rate, as ROS tools expect
 (rqt_robot_monitor, the diagnostic aggregator, Foxglove): one DiagnosticStatus named "<node>: <what>" whose
-key/values are the counters the node already keeps."""
+key/values are the counters the node already keeps; a managed node also reports its lifecycle state
+(WARN "not serving" outside active) and why its last transition failed."""
 from __future__ import annotations
 
 import time
@@ -8,6 +9,8 @@ from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+
+from .lifecycle import lifecycle_state
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -30,6 +33,14 @@ class Diagnostics:
             level, message, values = self.report()
         except Exception as exc:  # noqa: BLE001 - a broken report is itself a diagnostic
             level, message, values = ERROR, f"diagnostics failed: {type(exc).__name__}: {exc}", {}
+        state = lifecycle_state(self.node)
+        if state is not None:  # a managed node: its state first; not serving is a WARN (ERROR stays ERROR)
+            error = getattr(self.node, "transition_error", "")
+            values = {"lifecycle_state": state, "transition_error": error,
+                      "refused_inactive": getattr(self.node, "refused_inactive", 0), **values}
+            if state != "active":
+                level = max(level, WARN)
+                message = f"lifecycle state '{state}': not serving" + (f" ({error})" if error else "")
         return DiagnosticStatus(level=level, name=self.name, message=message,
                                 hardware_id=self.node.get_fully_qualified_name(),
                                 values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])

@@ -1,0 +1,235 @@
+"""Managed (lifecycle) nodes: the states, transitions and refusals the suite's nodes share.
+
+The standard ROS 2 state machine (rclpy.lifecycle.LifecycleNode, the services <node>/change_state,
+<node>/get_state, ... that `ros2 lifecycle` and nav2's lifecycle_manager drive):
+
+    unconfigured --configure--> inactive --activate--> active --deactivate--> inactive --cleanup--> unconfigured
+
+- __init__ declares the parameters only (so `ros2 param` works in every state) and, with the parameter
+  `autostart` (default true), configures and activates the node at once: the executables, `physdyn up` and the
+  demo get an active node as before. With autostart false the node waits, unconfigured, for a manager.
+- configure(): reads the parameters, loads what is heavy (the model, the simulator), creates the lifecycle
+  publishers, services and timers. A bad value raises with the reason: the transition FAILS, the reason is
+  logged (and shown on /diagnostics), whatever was made is released and the node stays unconfigured and alive.
+- activate(): subscriptions are created and the lifecycle publishers enabled; services answer.
+- deactivate(): subscriptions destroyed, publishers disabled; a service call answers success=false with
+  "node is inactive (lifecycle state 'inactive')".
+- cleanup(): everything configure() made is destroyed and the model released; the services are gone.
+- shutdown (from any state) and errors release everything too. destroy_node() destroys the entities (rclpy)
+  but leaves the node's attributes (model id, counters) readable; a node holding an outside resource (the
+  simulator, the tf listener's thread) releases it in its own destroy_node.
+
+Subclasses implement the four hooks and create their entities through configured_publisher / configured_service
+/ configured_timer (destroyed on cleanup) and active_subscription (destroyed on deactivate).
+"""
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+from lifecycle_msgs.msg import State
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+
+from .params import declare
+
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+ACTIVE, INACTIVE, UNCONFIGURED = (State.PRIMARY_STATE_ACTIVE, State.PRIMARY_STATE_INACTIVE,
+                                  State.PRIMARY_STATE_UNCONFIGURED)
+
+
+def lifecycle_state(node: Any) -> str | None:
+    """The label of a lifecycle node's current state ('active', 'inactive', ...); None for a plain node."""
+    machine = getattr(node, "_state_machine", None)
+    return None if machine is None else str(machine.current_state[1])
+
+
+class ManagedNode(LifecycleNode):
+    """A LifecycleNode with the suite's conventions (see the module docstring)."""
+
+    def __init__(self, node_name: str, **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        self.autostart: bool = declare(
+            self, "autostart", True, "configure and activate the node at start (true: standalone, `physdyn up`); "
+            "false: wait unconfigured for a lifecycle manager (ros2 lifecycle set <node> configure / activate)",
+            read_only=True)
+        #: Why the last transition failed ("" after a successful one); on /diagnostics.
+        self.transition_error = ""
+        #: Requests refused because the node was not active.
+        self.refused_inactive = 0
+        self._failure: BaseException | None = None
+        self._configured: list[tuple[str, Any]] = []  # (kind, entity) made by configure(), destroyed on cleanup
+        self._subscriptions_active: list[Any] = []  # made by activate(), destroyed on deactivate
+        self._made = False  # configure() ran (cleanup() releases)
+
+    # ------------------------------------------------------------------------------------- subclass hooks
+    def configure(self) -> None:
+        """Read the parameters, load the model, create publishers / services / timers; raise on bad values."""
+
+    def activate(self) -> None:
+        """Create subscriptions, start work."""
+
+    def deactivate(self) -> None:
+        """Stop work (subscriptions are destroyed by the base class)."""
+
+    def cleanup(self) -> None:
+        """Release the model and whatever configure() loaded (entities are destroyed by the base class).
+        Must cope with a configure() that failed half-way."""
+
+    def describe(self) -> str:
+        """One line for the 'active: ...' log message."""
+        return ""
+
+    # ----------------------------------------------------------------------------------------------- state
+    @property
+    def state(self) -> str:
+        return lifecycle_state(self) or "unknown"
+
+    @property
+    def is_active(self) -> bool:
+        return self._state_machine.current_state[0] == ACTIVE
+
+    def not_serving(self) -> str:
+        """The reason a request is refused outside the active state."""
+        return (f"node is inactive (lifecycle state '{self.state}'): activate it, e.g. "
+                f"`ros2 lifecycle set {self.get_fully_qualified_name()} activate`")
+
+    def start(self) -> None:
+        """Called at the end of a subclass's __init__: with autostart, configure and activate now. A node that
+        cannot configure then raises the reason (the executable exits 1 with it, as before lifecycle)."""
+        if not self.autostart:
+            self.get_logger().info("unconfigured (autostart false): waiting for configure and activate")
+            return
+        for trigger, what in ((self.trigger_configure, "configure"), (self.trigger_activate, "activate")):
+            if trigger() != SUCCESS:
+                failure, self._failure = self._failure, None
+                if failure is not None:
+                    raise failure
+                raise RuntimeError(f"{what} failed: {self.transition_error or 'see the log'}")
+
+    # -------------------------------------------------------------------------------------------- entities
+    def configured_publisher(self, msg_type, topic: str, qos) -> Any:
+        """A lifecycle publisher (publishes only while active), destroyed on cleanup."""
+        pub = self.create_lifecycle_publisher(msg_type, topic, qos)
+        self._configured.append(("publisher", pub))
+        return pub
+
+    def configured_service(self, srv_type, name: str, callback: Callable, **kwargs) -> Any:
+        """A service that exists from configure to cleanup and answers only while active; otherwise its response
+        has success=false and the reason (every service of the suite has success and message)."""
+        @functools.wraps(callback)
+        def guarded(req, res):
+            if not self.is_active:
+                self.refused_inactive += 1
+                res.success, res.message = False, self.not_serving()
+                return res
+            return callback(req, res)
+
+        srv = self.create_service(srv_type, name, guarded, **kwargs)
+        self._configured.append(("service", srv))
+        return srv
+
+    def configured_timer(self, period: float, callback: Callable, **kwargs) -> Any:
+        """A timer from configure to cleanup; its callback runs only while the node is active."""
+        @functools.wraps(callback)
+        def guarded():
+            if self.is_active:
+                callback()
+
+        timer = self.create_timer(period, guarded, **kwargs)
+        self._configured.append(("timer", timer))
+        return timer
+
+    def active_subscription(self, msg_type, topic: str, callback: Callable, qos, **kwargs) -> Any:
+        """A subscription from activate to deactivate (latched topics are delivered again on activation)."""
+        sub = self.create_subscription(msg_type, topic, callback, qos, **kwargs)
+        self._subscriptions_active.append(sub)
+        return sub
+
+    def _destroy_subscriptions(self) -> None:
+        subs, self._subscriptions_active = self._subscriptions_active, []
+        for sub in subs:
+            self.destroy_subscription(sub)
+
+    def _release(self) -> None:
+        """cleanup() and the destruction of every configured entity (newest first); safe to call twice."""
+        self._destroy_subscriptions()
+        if self._made:
+            self._made = False
+            try:
+                self.cleanup()
+            except Exception as exc:  # noqa: BLE001 - release the rest anyway
+                self.get_logger().error(f"cleanup: {type(exc).__name__}: {exc}")
+        made, self._configured = self._configured, []
+        for kind, entity in reversed(made):
+            if kind == "publisher":
+                self.destroy_lifecycle_publisher(entity)
+            elif kind == "service":
+                self.destroy_service(entity)
+            else:
+                self.destroy_timer(entity)
+
+    def _transition_failed(self, what: str, exc: BaseException, back_to: str) -> TransitionCallbackReturn:
+        self._failure = exc
+        self.transition_error = f"{what} failed: {exc}"
+        self.get_logger().error(f"{self.transition_error} (the node stays {back_to})")
+        return FAILURE
+
+    # ------------------------------------------------------------------------------ rclpy transition callbacks
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._failure = None
+        self._made = True
+        try:
+            self.configure()
+        except Exception as exc:  # noqa: BLE001 - a bad value: FAILURE, stay unconfigured, keep running
+            self._release()
+            return self._transition_failed("configure", exc, "unconfigured")
+        self.transition_error = ""
+        self.get_logger().info("configured (inactive)")
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._failure = None
+        ret = super().on_activate(state)  # enables the lifecycle publishers (activate() may publish)
+        if ret != SUCCESS:
+            return ret
+        try:
+            self.activate()
+        except Exception as exc:  # noqa: BLE001
+            super().on_deactivate(state)
+            self._destroy_subscriptions()
+            return self._transition_failed("activate", exc, "inactive")
+        self.transition_error = ""
+        self.get_logger().info(f"active: {self.describe()}".rstrip(": "))
+        return ret
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        ret = super().on_deactivate(state)
+        self._destroy_subscriptions()
+        try:
+            self.deactivate()
+        except Exception as exc:  # noqa: BLE001 - the node is inactive anyway
+            self.get_logger().error(f"deactivate: {type(exc).__name__}: {exc}")
+        self.get_logger().info("deactivated (inactive): requests are refused until activate")
+        return ret
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("cleaned up (unconfigured): model and resources released")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if state.state_id == ACTIVE:
+            super().on_deactivate(state)
+            try:
+                self.deactivate()
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"deactivate: {type(exc).__name__}: {exc}")
+        self._release()
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """An exception escaped a transition: release everything and return to unconfigured."""
+        self.get_logger().error(f"error in a transition from '{state.label}': releasing everything")
+        super().on_deactivate(state)
+        self._release()
+        return SUCCESS
