@@ -289,23 +289,58 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
     """Train (or resume) and return a summary. `cfg` is a resolved config (resolve_config).
 
     `init`: fine-tune, i.e. start a new run from this checkpoint's weights and normalisation statistics (its
-    model section must equal cfg's); the optimiser, schedule and epochs start afresh."""
-    from torch.utils.data.distributed import DistributedSampler
+    model section must equal cfg's); the optimiser, schedule and epochs start afresh.
 
-    from .windows import WindowDataset, compute_stats, dataset_identity, fixed_windows, load_sims
-
+    The steps: the device and process group, the checkpoints to start from, the data, the run's state (_Run:
+    model, optimiser, schedule, progress), then epochs until done, a time limit or a signal."""
     t_start = time.monotonic()
     d = init_distributed(device)
-    if device.startswith("cuda"):
-        dev = torch.device("cuda", d.local_rank if d.enabled else (torch.device(device).index or 0))
-        torch.cuda.set_device(dev)
-    else:
-        dev = torch.device("cpu")
+    dev = _device(device, d)
     out = Path(out)
     tcfg = cfg["train"]
     if tcfg["threads"]:
         torch.set_num_threads(int(tcfg["threads"]))
+    ckpt, base = _start_checkpoints(cfg, resume, init)
+    train_sims, val_sims, identity = _load_data(cfg, data, ckpt, resume, allow_data_change)
+    run = _Run(cfg, d, dev, out, ckpt, base, train_sims, val_sims, identity)
+    run.start_folder()
 
+    run.last_save = time.monotonic()
+    stopped = None
+    with _StopFlag() as stop:
+        while run.prog["epoch"] < tcfg["epochs"] and stopped is None:
+            epoch = run.prog["epoch"]
+            stopped, sums, seen, t_epoch = run.train_epoch(stop, time_limit, t_start, progress)
+            if stopped is not None:
+                run.save(out / "checkpoint_last.pt")
+                break
+            run.end_epoch(epoch, sums, seen, t_epoch, progress)
+            _barrier(d)
+    prog = run.prog
+    summary = {"epochs_done": prog["epoch"], "step": prog["step"], "best_metric": prog["best_metric"],
+               "best_epoch": prog["best_epoch"], "stopped": stopped, "out": str(out),
+               "seconds": round(time.monotonic() - t_start, 1)}
+    if d.enabled:
+        import torch.distributed as dist
+
+        _barrier(d)
+        dist.destroy_process_group()
+    return summary
+
+
+def _device(device: str, d: Dist) -> torch.device:
+    """This process's torch device (under torchrun on CUDA: its local GPU)."""
+    if device.startswith("cuda"):
+        dev = torch.device("cuda", d.local_rank if d.enabled else (torch.device(device).index or 0))
+        torch.cuda.set_device(dev)
+        return dev
+    return torch.device("cpu")
+
+
+def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
+                       init: Optional[str]) -> tuple[Optional[dict[str, Any]], Optional[dict[str, Any]]]:
+    """The checkpoint to resume (`resume`: its model, loss and data sections must equal cfg's) and the one to
+    fine-tune from (`init`: its model section must equal cfg's); CheckpointError / ValueError otherwise."""
     ckpt: Optional[dict[str, Any]] = None
     if resume is not None:
         ckpt = load_checkpoint(resume, map_location="cpu")
@@ -321,6 +356,14 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
         base = load_checkpoint(init, map_location="cpu")
         if base["config"].get("model") != cfg["model"]:
             raise CheckpointError(f"--init {init}: its model config differs from the requested one")
+    return ckpt, base
+
+
+def _load_data(cfg: dict[str, Any], data: str | Path, ckpt: Optional[dict[str, Any]], resume: Optional[str],
+               allow_data_change: bool) -> tuple[Any, Any, dict[str, Any]]:
+    """The training and validation simulations (cfg's data section) and the dataset's identity; a resumed run
+    must continue on the dataset it started on unless allow_data_change."""
+    from .windows import dataset_identity, load_sims
 
     dcfg = cfg["data"]
     train_sims = load_sims(data, ["train"], dcfg["categories"], dcfg["exclude_categories"])
@@ -333,137 +376,168 @@ def train(cfg: dict[str, Any], data: str | Path, out: str | Path, resume: Option
         if old != identity["manifest_sha256"] and not allow_data_change:
             raise CheckpointError(f"{resume} was trained on a different dataset (manifest sha256 {str(old)[:12]} "
                                   f"vs {identity['manifest_sha256'][:12]}); pass --allow-data-change to continue")
-    # Fine-tuning keeps the pretrained statistics: the network's weights are tied to them.
-    stats = dict((ckpt or base)["normalization"]) if (ckpt or base) is not None else compute_stats(train_sims)
+    return train_sims, val_sims, identity
 
-    torch.manual_seed(tcfg["seed"])
-    model_cfg = ModelConfig.from_dict(cfg["model"])
-    core = DynamicsModel(model_cfg, stats).to(dev)
-    loss_cfg = LossConfig.from_dict(cfg["loss"])
-    optimizer = torch.optim.Adam(core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, tcfg))
-    prog = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
-    if base is not None:
-        core.load_state_dict(base["model"])
-    if ckpt is not None:
-        core.load_state_dict(ckpt["model"])
-        optimizer.load_state_dict(ckpt["optimizer"])
-        scheduler.load_state_dict(ckpt["scheduler"])
-        if ckpt.get("rng"):
-            restore_rng(ckpt["rng"])
-        prog.update(ckpt.get("progress", {}))
-    model: torch.nn.Module = core
-    if d.enabled:
-        model = torch.nn.parallel.DistributedDataParallel(core, device_ids=[dev.index] if dev.type == "cuda" else None)
 
-    ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points, partial=dcfg.get("partial_views", 0.0),
-                       noise=dcfg.get("view_noise", 0.0))
-    sampler = DistributedSampler(ds, num_replicas=d.world, rank=d.rank, shuffle=True, seed=tcfg["seed"])
-    if tcfg["batch_size"] % d.world:
-        raise ValueError(f"train.batch_size {tcfg['batch_size']} must be divisible by the {d.world} processes")
-    per_rank = tcfg["batch_size"] // d.world
-    val_index, val_starts = fixed_windows(val_sims, tcfg["window"], tcfg["val_windows_per_sim"], tcfg["val_seed"])
+class _Run:
+    """One training run's state: the model (DDP-wrapped when distributed), optimiser, schedule, progress
+    (epoch, batch, step, best metric), the training windows and their sampler, the fixed validation windows."""
 
-    if d.main:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-        print(f"train: {len(train_sims)} train / {len(val_sims)} val simulations, {d.world} process(es) on {dev}, "
-              f"{count_parameters(core)['total']:,} parameters, batch {tcfg['batch_size']}", file=sys.stderr)
+    def __init__(self, cfg: dict[str, Any], d: Dist, dev: torch.device, out: Path, ckpt: Optional[dict[str, Any]],
+                 base: Optional[dict[str, Any]], train_sims: Any, val_sims: Any, identity: dict[str, Any]) -> None:
+        from torch.utils.data.distributed import DistributedSampler
 
-    def save(path: Path, with_optimizer: bool = True) -> None:
-        if d.main:
-            save_checkpoint(path, model=core, config=cfg, dataset=identity,
-                            optimizer=optimizer if with_optimizer else None,
-                            scheduler=scheduler if with_optimizer else None, progress=prog,
+        from .windows import WindowDataset, compute_stats, fixed_windows
+
+        self.cfg, self.d, self.dev, self.out, self.identity = cfg, d, dev, out, identity
+        self.train_sims, self.val_sims = train_sims, val_sims
+        tcfg, dcfg = cfg["train"], cfg["data"]
+        self.tcfg = tcfg
+        # Fine-tuning keeps the pretrained statistics: the network's weights are tied to them.
+        start = ckpt or base
+        stats = dict(start["normalization"]) if start is not None else compute_stats(train_sims)
+
+        torch.manual_seed(tcfg["seed"])
+        model_cfg = ModelConfig.from_dict(cfg["model"])
+        self.core = DynamicsModel(model_cfg, stats).to(dev)
+        self.loss_cfg = LossConfig.from_dict(cfg["loss"])
+        self.optimizer = torch.optim.Adam(self.core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda step: lr_factor(step, tcfg))
+        self.prog: dict[str, Any] = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
+        if base is not None:
+            self.core.load_state_dict(base["model"])
+        if ckpt is not None:
+            self.core.load_state_dict(ckpt["model"])
+            self.optimizer.load_state_dict(ckpt["optimizer"])
+            self.scheduler.load_state_dict(ckpt["scheduler"])
+            if ckpt.get("rng"):
+                restore_rng(ckpt["rng"])
+            self.prog.update(ckpt.get("progress", {}))
+        self.model: torch.nn.Module = self.core
+        if d.enabled:
+            self.model = torch.nn.parallel.DistributedDataParallel(
+                self.core, device_ids=[dev.index] if dev.type == "cuda" else None)
+
+        self.ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points,
+                                partial=dcfg.get("partial_views", 0.0), noise=dcfg.get("view_noise", 0.0))
+        self.sampler: DistributedSampler = DistributedSampler(self.ds, num_replicas=d.world, rank=d.rank,
+                                                              shuffle=True, seed=tcfg["seed"])
+        if tcfg["batch_size"] % d.world:
+            raise ValueError(f"train.batch_size {tcfg['batch_size']} must be divisible by the {d.world} processes")
+        self.per_rank = tcfg["batch_size"] // d.world
+        self.val_index, self.val_starts = fixed_windows(val_sims, tcfg["window"], tcfg["val_windows_per_sim"],
+                                                        tcfg["val_seed"])
+        self.last_save = time.monotonic()
+
+    def start_folder(self) -> None:
+        """The main process creates the run folder, writes the resolved config.yaml and says what it trains."""
+        if self.d.main:
+            tcfg = self.tcfg
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "config.yaml").write_text(yaml.safe_dump(self.cfg, sort_keys=False))
+            print(f"train: {len(self.train_sims)} train / {len(self.val_sims)} val simulations, {self.d.world} "
+                  f"process(es) on {self.dev}, {count_parameters(self.core)['total']:,} parameters, batch "
+                  f"{tcfg['batch_size']}", file=sys.stderr)
+
+    def save(self, path: Path, with_optimizer: bool = True) -> None:
+        """A checkpoint (main process only): the full state, or the weights alone (with_optimizer False)."""
+        if self.d.main:
+            save_checkpoint(path, model=self.core, config=self.cfg, dataset=self.identity,
+                            optimizer=self.optimizer if with_optimizer else None,
+                            scheduler=self.scheduler if with_optimizer else None, progress=self.prog,
                             include_rng=with_optimizer)
 
-    last_save = time.monotonic()
-    stopped = None
-    with _StopFlag() as stop:
-        while prog["epoch"] < tcfg["epochs"] and stopped is None:
-            epoch = prog["epoch"]
-            sampler.set_epoch(epoch)
-            order = np.fromiter(iter(sampler), dtype=np.int64)
-            n_batches = math.ceil(len(order) / per_rank)
-            bar = None
-            if progress and d.main:
-                from tqdm import tqdm
+    def train_epoch(self, stop: _StopFlag, time_limit: Optional[float], t_start: float,
+                    progress: bool) -> tuple[Optional[str], dict[str, float], int, float]:
+        """The batches of epoch prog["epoch"] from prog["batch"] on. Returns why it stopped early ("time limit",
+        "signal") or None, the sums of the loss parts, the number of batches run and the epoch's start time."""
+        tcfg, d, prog = self.tcfg, self.d, self.prog
+        epoch = prog["epoch"]
+        self.sampler.set_epoch(epoch)
+        order = np.fromiter(iter(self.sampler), dtype=np.int64)
+        n_batches = math.ceil(len(order) / self.per_rank)
+        bar = None
+        if progress and d.main:
+            from tqdm import tqdm
 
-                bar = tqdm(total=n_batches, initial=prog["batch"], desc=f"epoch {epoch + 1}/{tcfg['epochs']}",
-                           dynamic_ncols=True, leave=False, file=sys.stderr)
-            core.train()
-            running: dict[str, float] = {}
-            sums: dict[str, float] = {}
-            seen = 0
-            t_epoch = time.monotonic()
-            for b in range(prog["batch"], n_batches):
-                rng = np.random.default_rng([tcfg["seed"], epoch, b, d.rank])
-                mode_rng = np.random.default_rng([tcfg["seed"], epoch, b])  # same on all ranks
-                feedback = bool(mode_rng.random() < tcfg["rollout_fraction"])
-                batch = _to(ds.batch(order[b * per_rank:(b + 1) * per_rank], rng), dev)
-                loss, parts = batch_loss(model, core, batch, loss_cfg, feedback)
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                if tcfg["grad_clip"]:
-                    torch.nn.utils.clip_grad_norm_(core.parameters(), tcfg["grad_clip"])
-                optimizer.step()
-                scheduler.step()
-                prog["step"] += 1
-                prog["batch"] = b + 1
-                for k, v in parts.items():
-                    x = float(v)
-                    running[k] = x if k not in running else 0.95 * running[k] + 0.05 * x
-                    sums[k] = sums.get(k, 0.0) + x
-                seen += 1
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix({k: f"{running[k]:.3f}" for k in ("total", "vel", "pos", "rot", "topple")})
-                over_time = time_limit is not None and time.monotonic() - t_start > time_limit
-                if _all_true(stop.requested or over_time, d, dev):
-                    stopped = "time limit" if over_time else "signal"
-                    break
-                if time.monotonic() - last_save > tcfg["checkpoint_every_s"] and b + 1 < n_batches:
-                    save(out / "checkpoint_last.pt")
-                    last_save = time.monotonic()
+            bar = tqdm(total=n_batches, initial=prog["batch"], desc=f"epoch {epoch + 1}/{tcfg['epochs']}",
+                       dynamic_ncols=True, leave=False, file=sys.stderr)
+        self.core.train()
+        running: dict[str, float] = {}
+        sums: dict[str, float] = {}
+        seen = 0
+        stopped = None
+        t_epoch = time.monotonic()
+        for b in range(prog["batch"], n_batches):
+            parts = self._step(order, epoch, b)
+            for k, v in parts.items():
+                x = float(v)
+                running[k] = x if k not in running else 0.95 * running[k] + 0.05 * x
+                sums[k] = sums.get(k, 0.0) + x
+            seen += 1
             if bar is not None:
-                bar.close()
-            if stopped is not None:
-                save(out / "checkpoint_last.pt")
+                bar.update(1)
+                bar.set_postfix({k: f"{running[k]:.3f}" for k in ("total", "vel", "pos", "rot", "topple")})
+            over_time = time_limit is not None and time.monotonic() - t_start > time_limit
+            if _all_true(stop.requested or over_time, d, self.dev):
+                stopped = "time limit" if over_time else "signal"
                 break
-            prog["epoch"], prog["batch"] = epoch + 1, 0
-            record: dict[str, Any] = {"epoch": epoch + 1, "step": prog["step"], "lr": optimizer.param_groups[0]["lr"],
-                                      "epoch_s": round(time.monotonic() - t_epoch, 2)}
-            record.update({f"train_{k}": v / max(seen, 1) for k, v in sums.items()})
-            improved = False
-            if d.main and ((epoch + 1) % tcfg["val_every"] == 0 or epoch + 1 == tcfg["epochs"]):
-                record.update(validate(core, val_sims, val_index, val_starts, cfg, loss_cfg, dev))
-                metric = record.get(tcfg["select_metric"], record["val_loss"])
-                if prog["best_metric"] is None or metric < prog["best_metric"]:
-                    prog["best_metric"], prog["best_epoch"], improved = float(metric), epoch + 1, True
-                record["best"] = improved
-            if d.main:
-                if improved:
-                    save(out / "checkpoint_best.pt")
-                    save(out / "model_best.pt", with_optimizer=False)
-                save(out / "checkpoint_last.pt")
-                last_save = time.monotonic()
-                with open(out / "train_log.jsonl", "a") as fh:
-                    fh.write(json.dumps(record) + "\n")
-                if not progress:
-                    keys = ("epoch", "train_total", "val_loss", "val_closed_loss", "val_final_pos_cm",
-                            "val_final_rot_deg", "lr", "epoch_s")
-                    print(" ".join(f"{k}={record[k]:.4g}" if isinstance(record.get(k), float)
-                                   else f"{k}={record.get(k)}" for k in keys if k in record), file=sys.stderr)
-            _barrier(d)
-    summary = {"epochs_done": prog["epoch"], "step": prog["step"], "best_metric": prog["best_metric"],
-               "best_epoch": prog["best_epoch"], "stopped": stopped, "out": str(out),
-               "seconds": round(time.monotonic() - t_start, 1)}
-    if d.enabled:
-        import torch.distributed as dist
+            if time.monotonic() - self.last_save > tcfg["checkpoint_every_s"] and b + 1 < n_batches:
+                self.save(self.out / "checkpoint_last.pt")
+                self.last_save = time.monotonic()
+        if bar is not None:
+            bar.close()
+        return stopped, sums, seen, t_epoch
 
-        _barrier(d)
-        dist.destroy_process_group()
-    return summary
+    def _step(self, order: np.ndarray, epoch: int, b: int) -> dict[str, torch.Tensor]:
+        """One optimiser step on batch b of the epoch; its window starts and points come from (seed, epoch, b,
+        rank), teacher forcing or closed loop from (seed, epoch, b). Returns the loss parts."""
+        tcfg = self.tcfg
+        rng = np.random.default_rng([tcfg["seed"], epoch, b, self.d.rank])
+        mode_rng = np.random.default_rng([tcfg["seed"], epoch, b])  # same on all ranks
+        feedback = bool(mode_rng.random() < tcfg["rollout_fraction"])
+        batch = _to(self.ds.batch(order[b * self.per_rank:(b + 1) * self.per_rank], rng), self.dev)
+        loss, parts = batch_loss(self.model, self.core, batch, self.loss_cfg, feedback)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if tcfg["grad_clip"]:
+            torch.nn.utils.clip_grad_norm_(self.core.parameters(), tcfg["grad_clip"])
+        self.optimizer.step()
+        self.scheduler.step()
+        self.prog["step"] += 1
+        self.prog["batch"] = b + 1
+        return parts
+
+    def end_epoch(self, epoch: int, sums: dict[str, float], seen: int, t_epoch: float, progress: bool) -> None:
+        """After a whole epoch: validation (every val_every epochs and at the end), the best and last
+        checkpoints, one train_log.jsonl line (printed too without a progress bar)."""
+        tcfg, d, prog, out = self.tcfg, self.d, self.prog, self.out
+        prog["epoch"], prog["batch"] = epoch + 1, 0
+        record: dict[str, Any] = {"epoch": epoch + 1, "step": prog["step"],
+                                  "lr": self.optimizer.param_groups[0]["lr"],
+                                  "epoch_s": round(time.monotonic() - t_epoch, 2)}
+        record.update({f"train_{k}": v / max(seen, 1) for k, v in sums.items()})
+        improved = False
+        if d.main and ((epoch + 1) % tcfg["val_every"] == 0 or epoch + 1 == tcfg["epochs"]):
+            record.update(validate(self.core, self.val_sims, self.val_index, self.val_starts, self.cfg,
+                                   self.loss_cfg, self.dev))
+            metric = record.get(tcfg["select_metric"], record["val_loss"])
+            if prog["best_metric"] is None or metric < prog["best_metric"]:
+                prog["best_metric"], prog["best_epoch"], improved = float(metric), epoch + 1, True
+            record["best"] = improved
+        if d.main:
+            if improved:
+                self.save(out / "checkpoint_best.pt")
+                self.save(out / "model_best.pt", with_optimizer=False)
+            self.save(out / "checkpoint_last.pt")
+            self.last_save = time.monotonic()
+            with open(out / "train_log.jsonl", "a") as fh:
+                fh.write(json.dumps(record) + "\n")
+            if not progress:
+                keys = ("epoch", "train_total", "val_loss", "val_closed_loss", "val_final_pos_cm",
+                        "val_final_rot_deg", "lr", "epoch_s")
+                print(" ".join(f"{k}={record[k]:.4g}" if isinstance(record.get(k), float)
+                               else f"{k}={record.get(k)}" for k in keys if k in record), file=sys.stderr)
 
 
 # ----------------------------------------------------------------------------------------------------- CLI
