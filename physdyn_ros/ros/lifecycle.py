@@ -28,11 +28,13 @@ import functools
 from typing import Any, Callable
 
 from lifecycle_msgs.msg import State
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from .params import declare
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+RCLError = _rclpy.RCLError
 ACTIVE, INACTIVE, UNCONFIGURED = (State.PRIMARY_STATE_ACTIVE, State.PRIMARY_STATE_INACTIVE,
                                   State.PRIMARY_STATE_UNCONFIGURED)
 
@@ -60,6 +62,24 @@ class ManagedNode(LifecycleNode):
         self._configured: list[tuple[str, Any]] = []  # (kind, entity) made by configure(), destroyed on cleanup
         self._subscriptions_active: list[Any] = []  # made by activate(), destroyed on deactivate
         self._made = False  # configure() ran (cleanup() releases)
+        service = getattr(self, "_service_change_state", None)
+        if service is not None:  # rclpy raises (and never answers) on a transition the state does not have
+            service.callback = self._answer_invalid_transitions(service.callback)
+
+    def _answer_invalid_transitions(self, change_state: Callable) -> Callable:
+        """rclcpp answers success=false to a transition that is not possible from the current state (configure
+        when active, activate when unconfigured); Jazzy's rclpy raises RCLError in the service callback, so the
+        caller never gets an answer. Answer as rclcpp does, with a warning."""
+        def handler(req, resp):
+            try:
+                return change_state(req, resp)
+            except RCLError as exc:
+                what = req.transition.label or f"id {req.transition.id}"
+                self.get_logger().warning(f"transition {what} is not possible from lifecycle state "
+                                          f"'{self.state}': refused ({str(exc).split(',')[0]})")
+                resp.success = False
+                return resp
+        return handler
 
     # ------------------------------------------------------------------------------------- subclass hooks
     def configure(self) -> None:
