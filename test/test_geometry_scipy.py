@@ -430,7 +430,14 @@ def test_predictor_rotations_equal_the_old_ones():
     from physdyn_ros import predictor
 
     rng = np.random.default_rng(9)
-    # compose_rotations (the batch-1 kernel: its exponential map through scipy) against the old composition
+    q_seq = unit(rng, (12,))
+    assert_close(predictor._rotation_increments(q_seq), old_observed_rotations(q_seq))
+    # compose_rotations keeps a numpy kernel (the batch-1 hot path): its exponential map equals scipy's
+    from scipy.spatial.transform import Rotation
+
+    for scale in (1e-9, 1e-4, 0.3, 3.0):
+        rv = rng.normal(size=(4, 7, 3)) * scale
+        assert_close(predictor._exp_map(rv), Rotation.from_rotvec(rv).as_quat())
     for b, h in ((1, 60), (3, 20), (40, 40)):
         q0, d_rot = unit(rng, (b,)), rng.normal(size=(b, h, 3)) * 0.3
         want = [q0]
