@@ -1,8 +1,9 @@
-"""The `Shape` type and the mesh maths it needs (numpy + open3d; no pybullet, no scipy).
+"""The `Shape` type and the mesh maths it needs (numpy, trimesh, open3d; no pybullet).
 
 A shape lives in its *object frame*: origin at the centre of mass of the solid (uniform density), z = the
 shape's up axis (upright when the orientation is the identity). Mass properties are computed exactly from the
-closed triangle mesh with the divergence theorem (signed tetrahedra), so they follow any per-axis scale.
+closed triangle mesh by trimesh (its polyhedral mass properties: the divergence theorem over the faces), so they
+follow any per-axis scale.
 """
 from __future__ import annotations
 
@@ -30,21 +31,27 @@ class MassProperties:
     principal_axes: np.ndarray  # (3, 3) rotation, columns = principal axes in the object frame (det +1)
 
 
-def mesh_moments(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Volume, first moment (3,) and second moment matrix ∫ x x^T dV (3, 3) of a closed, outward-oriented mesh.
+def _trimesh_mass(vertices: np.ndarray, faces: np.ndarray, density: float = 1.0):
+    """trimesh's mass properties (volume, center_mass, inertia about it) of a triangle soup; signed volume (< 0
+    for an inward-wound mesh); a centre of mass of zeros where the volume is zero."""
+    from trimesh.triangles import mass_properties as trimesh_mass_properties
 
-    Each face and the origin span a signed tetrahedron; for a tetrahedron with one vertex at the origin and the
-    others a, b, c: V = det[a b c] / 6, ∫x dV = V (a+b+c) / 4, ∫x x^T dV = V/20 (aa^T + bb^T + cc^T + s s^T), s = a+b+c.
-    """
-    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
-    s = a + b + c
-    first = (vol[:, None] * s).sum(0) / 4.0
-    outer = (np.einsum("ni,nj->nij", a, a) + np.einsum("ni,nj->nij", b, b) + np.einsum("ni,nj->nij", c, c)
-             + np.einsum("ni,nj->nij", s, s))
-    second = np.einsum("n,nij->ij", vol, outer) / 20.0
-    return float(vol.sum()), first, second
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].reshape(-1, 3, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero volume: no centre of mass (checked by callers)
+        mp = trimesh_mass_properties(tri, density=density)
+    if not np.all(np.isfinite(mp.center_mass)):
+        mp = trimesh_mass_properties(tri, density=density, center_mass=np.zeros(3))
+    return mp
+
+
+def mesh_moments(vertices: np.ndarray, faces: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Volume, first moment (3,) and second moment matrix ∫ x x^T dV (3, 3) of a closed, outward-oriented mesh
+    (signed: negative for an inward-wound mesh), from trimesh's mass properties."""
+    mp = _trimesh_mass(vertices, faces)
+    volume, com = float(mp.volume), np.asarray(mp.center_mass, dtype=np.float64)
+    # inertia about the COM I = tr(C) Id - C with C = ∫ (x - com)(x - com)^T dV, so C = tr(I) / 2 Id - I
+    c_com = 0.5 * np.trace(mp.inertia) * np.eye(3) - mp.inertia
+    return volume, volume * com, c_com + volume * np.outer(com, com)
 
 
 def mass_properties(vertices: np.ndarray, faces: np.ndarray, density: float = DEFAULT_DENSITY,
@@ -55,14 +62,12 @@ def mass_properties(vertices: np.ndarray, faces: np.ndarray, density: float = DE
         raise ValueError(f"scale must be positive, got {scale.tolist()}")
     if not density > 0:
         raise ValueError(f"density must be positive, got {density}")
-    volume, first, second = mesh_moments(np.asarray(vertices, dtype=np.float64) * scale, faces)
+    mp = _trimesh_mass(np.asarray(vertices, dtype=np.float64) * scale, faces, density)
+    volume = float(mp.volume)
     if not volume > 1e-12:
         raise ValueError(f"mesh has no positive volume ({volume:.3g} m^3): it is not closed or its faces point inwards")
-    com = first / volume
-    # Second moment about the COM, then inertia I = tr(C) Id - C (per unit density, times density).
-    c_com = (second - volume * np.outer(com, com)) * density
-    inertia = np.trace(c_com) * np.eye(3) - c_com
-    inertia = 0.5 * (inertia + inertia.T)
+    com = np.asarray(mp.center_mass, dtype=np.float64)
+    inertia = np.asarray(mp.inertia, dtype=np.float64)  # about the COM, object axes (trimesh: symmetric)
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
         axes[:, 2] = -axes[:, 2]
