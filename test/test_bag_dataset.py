@@ -27,6 +27,7 @@ REST_STATES = 10
 @pytest.fixture(scope="module")
 def session(rclpy_init, tmp_path_factory):
     from geometry_msgs.msg import Vector3
+    from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import PointCloud2
 
     from physdyn_ros.msg import ObjectState
@@ -43,8 +44,16 @@ def session(rclpy_init, tmp_path_factory):
     # The driver watches what the recorder records, and waits for events instead of sleeping.
     states: list = []
     clouds: list = []
+    receiving = [0]  # topics the recorder has recorded a message of (its /diagnostics)
     node.create_subscription(ObjectState, "object_state", states.append, STATE_QOS)
     node.create_subscription(PointCloud2, "cloud", clouds.append, CLOUD_QOS)
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith("recorder"):
+                receiving[0] = int({kv.key: kv.value for kv in status.values}.get("topics_receiving", 0))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
 
     def spin_until(predicate, what: str, timeout: float = 30.0):
         deadline = time.monotonic() + timeout
@@ -60,7 +69,9 @@ def session(rclpy_init, tmp_path_factory):
         # The recorder subscribes once it sees the sim's publishers; push only after it has.
         assert wait_until(lambda: all(any(i.node_name == "recorder" for i in node.get_subscriptions_info_by_topic(
             f"/{t}")) for t in TOPICS), timeout=30)
-        time.sleep(0.5)  # and the sim's writers have matched the recorder's readers
+        # and the sim's writers have matched the recorder's readers: it records every topic the sim publishes
+        # steadily (object_state, odom, object_pose, cloud; initial_twist's reader was announced with them)
+        spin_until(lambda: receiving[0] >= len(TOPICS) - 1, "the recorder receiving the sim's topics")
 
         def call(client, request):
             future = client.call_async(request)

@@ -233,11 +233,14 @@ def test_demo_short_run(tmp_path, tiny_model):
     results = json.loads((out / "results.json").read_text())
     pushes = results["pushes"]
     assert len(pushes) == 2 and pushes[1]["category"] == "pybullet_data"  # an object the model never saw
+    from scipy.spatial.transform import Rotation
+
     for p in pushes:
         assert len(p["true_xy"]) == 31 and len(p["predicted_xy"]) == 31
-        # the reported error is the distance of the reported poses
+        # the reported errors are the distance and the angle between the reported poses (issue 15.12)
         assert p["position_error_cm"] == pytest.approx(100 * math.dist(p["predicted_final"], p["true_final"]))
-        assert 0 <= p["rotation_error_deg"] <= 180
+        turn = Rotation.from_quat(p["predicted_quat"]).inv() * Rotation.from_quat(p["true_quat"])
+        assert p["rotation_error_deg"] == pytest.approx(math.degrees(turn.magnitude()), abs=1e-6)
         assert p["verdict"] in ("GOOD", "FAIR", "POOR") and len(p["outline"]) > 50
         # a toppled push is scored at its last upright frame, an upright one at the end
         assert p["scored_step"] == (p["true_topple_step"] - 1 if p["toppled"] else 30)

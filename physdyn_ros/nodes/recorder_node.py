@@ -138,6 +138,7 @@ class RecorderNode(Node):
         self.subs: dict[str, object] = {}
         self.failure: str | None = None
         self.received = 0
+        self.receiving: set[int] = set()  # topic ids with at least one message: their publishers are matched
         self.lost = 0
         self.last_rx = time.monotonic()
         self.last_sent: dict[int, int] = {}  # topic id -> latest source timestamp (ns, publisher clock)
@@ -150,7 +151,8 @@ class RecorderNode(Node):
         level = ERROR if self.failure else WARN if self.lost else OK
         message = self.failure or (f"{self.lost} message(s) lost" if self.lost else f"recording to {self.writer.path}")
         return level, message, {"bag": str(self.writer.path), "topics_recording": len(self.subs),
-                                "topics_waiting": len(self.pending), "received": self.received, "lost": self.lost,
+                                "topics_waiting": len(self.pending), "topics_receiving": len(self.receiving),
+                                "received": self.received, "lost": self.lost,
                                 "written": self.writer.message_count}
 
     # ---------------------------------------------------------------------------------------------- discovery
@@ -223,6 +225,7 @@ class RecorderNode(Node):
                 self.failure = str(exc)
                 return
             self.received += 1
+            self.receiving.add(tid)
             self.last_rx = time.monotonic()
             sent = int(info.get("source_timestamp") or 0)
             if sent > self.last_sent.get(tid, 0):
