@@ -3,8 +3,8 @@
 The recorder node runs as its own process (`python -m physdyn_ros.nodes.recorder_node --ros-args ...`) with a
 split duration far beyond the test, so everything it records goes to one unfinished split. The test publishes
 large messages (more than rosbags' 1 MiB chunk size: a chunk completed by size) and then small ones at 50 Hz
-(chunks completed by age, CHUNK_PERIOD), waits past the bound, publishes a few more and kills the node with
-SIGKILL. The unfinished file is then read record by record from its start, as `mcap recover` does
+(chunks completed by age, CHUNK_PERIOD), waits until all of it is in complete chunks on disk (at most the bound),
+publishes a few more and kills the node with SIGKILL. The unfinished file is then read record by record from its start, as `mcap recover` does
 (test_bag_support.scan_mcap, a parser independent of the writer): everything published before the wait must
 be there, byte for byte and in order, in complete, indexed chunks.
 """
@@ -43,6 +43,22 @@ def _start_recorder(out, timeout: float = 60.0) -> subprocess.Popen:
     raise TimeoutError("recorder did not start")
 
 
+class _Counts(dict):
+    """Messages per topic; `>=` another: at least as many on every topic of the other."""
+
+    def __ge__(self, other):
+        return all(self.get(t, 0) >= n for t, n in other.items())
+
+
+def _on_disk(path) -> _Counts:
+    """Messages per topic in the complete chunks of an MCAP file being written (none before it exists)."""
+    counts = _Counts()
+    if path.is_file() and path.stat().st_size >= 8:
+        for topic, _, _ in scan_mcap(path)["messages"]:
+            counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
 def test_killed_recorder_node_leaves_its_complete_chunks_on_disk(rclpy_init, tmp_path):
     from physdyn_ros.msg import ObjectState
     from std_msgs.msg import String
@@ -71,8 +87,10 @@ def test_killed_recorder_node_leaves_its_complete_chunks_on_disk(rclpy_init, tmp
             publish(states, "/object_state", object_state_bytes(i))
             time.sleep(0.02)
         must_have = {t: len(v) for t, v in sent.items()}
-        # Past the bound: the open chunk is at most CHUNK_PERIOD old at the next tick (+ DDS / scheduling slack).
-        time.sleep(CHUNK_PERIOD + TICK + 1.5)
+        # Within the bound, everything sent is in complete chunks on disk: the open chunk is at most CHUNK_PERIOD
+        # old at the next tick (+ DDS / scheduling slack). Wait for that, not for a fixed time.
+        assert wait_until(lambda: _on_disk(bag / "bag_0" / "bag_0.mcap") >= must_have,
+                          timeout=CHUNK_PERIOD + TICK + 1.5, spin=lambda: time.sleep(0.2)), must_have
         for i in range(250, 255):  # in the open chunk at the kill: may be lost
             publish(states, "/object_state", object_state_bytes(i))
         time.sleep(0.05)
