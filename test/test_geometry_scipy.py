@@ -386,6 +386,10 @@ def test_ros_convert_helpers_equal_the_old_ones():
         assert convert.is_toppled(a) == OldConvert.is_toppled(a)
         yaw = rng.uniform(-4, 4)
         assert_close(convert.yaw_quaternion(yaw), OldConvert.yaw_quaternion(yaw))
+    for angle in (math.pi / 4, math.pi / 4 - 1e-12, math.pi / 4 + 1e-12):  # the edge of toppling, bit for bit
+        q = OldGeometry.axis_angle_to_quat(np.array([angle, 0.0, 0.0]))
+        assert convert.is_toppled(q) == OldConvert.is_toppled(q)
+        assert convert.is_toppled(q.astype(np.float32)) == OldConvert.is_toppled(q.astype(np.float32))
     assert convert.quat_angle([0, 0, 0, 1.0], [0, 0, 0, 1.0]) == 0.0
     assert isinstance(convert.quat_angle([0, 0, 0, 1.0], [0, 0, 1.0, 0]), float)
 
