@@ -206,7 +206,7 @@ def test_requirements_pin_what_the_code_imports():
             unpinned.append(f"{top} ({', '.join(sorted(dists))}, imported by {where})")
     assert not unpinned, f"requirements.txt does not pin: {unpinned}"
     used = {d.lower().replace("_", "-") for t in imported for d in owners.get(t, [])}
-    tools = ("ros-", "colcon-", "catkin-pkg", "pytest", "ruff")  # build, test and lint tools: run, not imported
+    tools = ("ros-", "colcon-", "catkin-pkg", "pytest", "ruff", "mypy")  # build, test, lint tools: run, not imported
     unused = sorted(d for d in pinned if not d.startswith(tools) and d not in used)
     assert not unused, f"pinned but never imported: {unused}"
 
@@ -216,4 +216,18 @@ def test_ruff_is_clean():
     ruff = Path(sys.executable).parent / "ruff"
     run = subprocess.run([str(ruff), "check", "--output-format", "concise", "."], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-1000:]
+
+
+def test_mypy_is_clean_on_the_core():
+    """Issue 15.11: mypy (pinned; mypy.ini) over the ROS-free core, every core folder of the layering rules."""
+    import configparser
+
+    cfg = configparser.ConfigParser()
+    cfg.read(ROOT / "mypy.ini")
+    files = {f.strip().rstrip(",") for f in cfg["mypy"]["files"].split()}
+    listed = {Path(f).with_suffix("").name if f.endswith(".py") else Path(f).name for f in files}
+    assert listed == set(CORE_PARTS), f"mypy.ini checks {sorted(listed)}, the core is {sorted(CORE_PARTS)}"
+    mypy = Path(sys.executable).parent / "mypy"
+    run = subprocess.run([str(mypy)], cwd=ROOT, capture_output=True, text=True, timeout=280)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-1000:]

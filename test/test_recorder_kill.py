@@ -3,10 +3,10 @@
 The recorder node runs as its own process (`python -m physdyn_ros.nodes.recorder_node --ros-args ...`) with a
 split duration far beyond the test, so everything it records goes to one unfinished split. The test publishes
 large messages (more than rosbags' 1 MiB chunk size: a chunk completed by size) and then small ones at 50 Hz
-(chunks completed by age, CHUNK_PERIOD), waits until all of it is in complete chunks on disk (at most the bound),
-publishes a few more and kills the node with SIGKILL. The unfinished file is then read record by record from its start, as `mcap recover` does
-(test_bag_support.scan_mcap, a parser independent of the writer): everything published before the wait must
-be there, byte for byte and in order, in complete, indexed chunks.
+(chunks completed by age, CHUNK_PERIOD), waits until all of it is in complete chunks on disk (at most the
+bound), publishes a few more and kills the node with SIGKILL. The unfinished file is then read record by record
+from its start, as `mcap recover` does (test_bag_support.scan_mcap, a parser independent of the writer):
+everything published before the wait must be there, byte for byte and in order, in complete, indexed chunks.
 """
 from __future__ import annotations
 

@@ -19,6 +19,7 @@ import os
 import shutil
 import sys
 import tempfile
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -71,7 +72,10 @@ def convert(bags: list[str | Path], out: str | Path, num_frames: int = 76, state
         raise ValueError(f"--friction must be in [0, 10], got {friction}")
     if rest_frames < 1 or rest_speed <= 0 or rest_spin <= 0:
         raise ValueError("--rest-frames must be >= 1 and --rest-speed / --rest-spin positive")
-    sims, shapes, points, skipped = [], [], [], []
+    sims: list[dict[str, Any]] = []
+    shapes: list[dict[str, Any]] = []
+    points: list[np.ndarray] = []
+    skipped: list[str] = []
     for bag in bags:
         session = load_session(bag, state_topic=state_topic, twist_topic=twist_topic or None,
                                cloud_topic=cloud_topic or None, prediction_topic=None, object_id=object_id)

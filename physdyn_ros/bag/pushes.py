@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -400,7 +401,7 @@ def _pick_cloud(clouds: list[Cloud], t0: int, end: int) -> Cloud | None:
 
 
 def push_frames(session: Session, push: Push, num_frames: int, rest_lin_vel: float = REST_LIN_VEL,
-                rest_ang_vel: float = REST_ANG_VEL, rest_frames: int = REST_FRAMES) -> dict[str, np.ndarray]:
+                rest_ang_vel: float = REST_ANG_VEL, rest_frames: int = REST_FRAMES) -> dict[str, Any]:
     """The push resampled at t0 + k * DT, k < num_frames, with the dataset's rest padding and topple labels.
 
     Raises ValueError (with the reason) when the recording does not cover the push until rest or num_frames.
@@ -424,7 +425,7 @@ def push_frames(session: Session, push: Push, num_frames: int, rest_lin_vel: flo
     out["pos"][:n], out["quat"][:n], out["lin_vel"][:n], out["ang_vel"][:n] = pos[:n], quat[:n], lin[:n], ang[:n]
     out["pos"][n:], out["quat"][n:] = pos[n - 1], quat[n - 1]  # rest padding: rest pose, zero velocities
     toppled, topple_index = geo.topple_labels(out["quat"])
-    res = {k: v.astype(np.float32) for k, v in out.items()}
+    res: dict[str, Any] = {k: v.astype(np.float32) for k, v in out.items()}  # arrays and numpy scalars
     res.update(toppled=toppled, length=np.int32(length), topple_index=np.int32(topple_index))
     return res
 

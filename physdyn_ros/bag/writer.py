@@ -36,7 +36,7 @@ from io import StringIO
 from pathlib import Path
 from typing import Callable, Sequence
 
-from rosbags.interfaces import Qos
+from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.rosbag2.storage_mcap import McapWriter
@@ -163,7 +163,7 @@ class _Split:
     index: int
     dir: Path
     writer: Writer
-    conns: dict[int, object] = field(default_factory=dict)  # topic id -> rosbags Connection
+    conns: dict[int, Connection] = field(default_factory=dict)  # topic id -> rosbags Connection
     opened: float = 0.0  # clock() at open
     chunk_opened: float | None = None  # clock() at the first message of the open MCAP chunk (None: no message)
     count: int = 0
@@ -250,8 +250,9 @@ class BagWriter:
                 raise ValueError(f"topic {name} ({msgtype}) was already added")
         self.topics.append(_Topic(name, msgtype, list(offered_qos)))
         tid = len(self.topics) - 1
-        if self.split is not None:
-            self._guard(lambda: self._add_connection(self.split, tid))
+        split = self.split
+        if split is not None:
+            self._guard(lambda: self._add_connection(split, tid))
         return tid
 
     # ------------------------------------------------------------------------------------------------ write
@@ -350,6 +351,7 @@ class BagWriter:
         split = self.split
         assert split is not None
         storage = split.writer.storage
+        assert isinstance(storage, _IncrementalMcapWriter)  # chunk_opened is only ever set for MCAP splits
         split.chunk_opened = None
         topics = storage.chunk_topics
         if storage.complete_chunk():

@@ -49,7 +49,7 @@ def weights_digest(state_dict: dict[str, torch.Tensor]) -> str:
 def rng_state() -> dict[str, Any]:
     """All generator states, in weights_only-loadable types (tensors, lists, ints)."""
     py = random.getstate()
-    np_state = np.random.get_state()
+    np_state: Any = np.random.get_state()  # the legacy tuple (name, keys, pos, has_gauss, cached_gaussian)
     state: dict[str, Any] = {
         "python": [py[0], list(py[1]), py[2]],
         "numpy": [np_state[0], torch.from_numpy(np_state[1].astype(np.int64)), int(np_state[2]),

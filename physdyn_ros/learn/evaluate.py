@@ -52,6 +52,11 @@ class Trajectories:
     topple_prob: Optional[np.ndarray] = None  # (B, H+1); None for methods that do not predict it
 
 
+def _rows(traj: Trajectories, mask: np.ndarray) -> dict[str, Any]:
+    """The fields of `traj` restricted to the sequences of `mask` (None stays None)."""
+    return {k: (v[mask] if v is not None else None) for k, v in vars(traj).items()}
+
+
 def ground_truth(sims: SimArrays, index: np.ndarray, horizon: int) -> Trajectories:
     sl = (index, slice(0, horizon + 1))
     return Trajectories(pos=sims.pos[sl].astype(np.float64), quat=sims.quat[sl].astype(np.float64),
@@ -81,9 +86,9 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         obs_v = seq["vel"][:, 1:1 + k].to(device) if k else None
         obs_w = seq["angvel"][:, 1:1 + k].to(device) if k else None
         feature = model.encode(seq["cloud"].to(device))
-        out = model.rollout(feature, seq["vel"][:, 0].to(device), seq["angvel"][:, 0].to(device), horizon,
-                            obs_v, obs_w)
-        out = {kk: v.double().cpu().numpy() for kk, v in out.items()}
+        rolled = model.rollout(feature, seq["vel"][:, 0].to(device), seq["angvel"][:, 0].to(device), horizon,
+                               obs_v, obs_w)
+        out = {kk: v.double().cpu().numpy() for kk, v in rolled.items()}
         d_pos, d_rot = out["d_pos"], out["d_rot"]
         if k:  # observed frames keep their true poses
             d_pos[:, :k] = seq["d_pos"][:, :k].double().numpy()
@@ -207,10 +212,10 @@ def evaluate_all(methods: dict[str, Trajectories], singles: dict[str, dict[str, 
     for gname, gmask in groups.items():
         if not gmask.any():
             continue
-        sub_gt = Trajectories(**{k: (v[gmask] if v is not None else None) for k, v in vars(gt).items()})
+        sub_gt = Trajectories(**_rows(gt, gmask))
         res = {}
         for mname, traj in methods.items():
-            sub = Trajectories(**{k: (v[gmask] if v is not None else None) for k, v in vars(traj).items()})
+            sub = Trajectories(**_rows(traj, gmask))
             single = {k: v[gmask] for k, v in singles[mname].items()} if mname in singles else None
             res[mname] = summarize_method(sub, sub_gt, moving[gmask], ~toppled[gmask], toppled[gmask], single)
         if gname == "overall":

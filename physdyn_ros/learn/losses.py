@@ -54,7 +54,8 @@ class LossConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "LossConfig":
         data = known_keys(cls, data, "loss")
-        cfg = cls(**{k: (str(v) if k == "relative_to" else float(v)) for k, v in data.items()})
+        values: dict[str, Any] = {k: (str(v) if k == "relative_to" else float(v)) for k, v in data.items()}
+        cfg = cls(**values)
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")
         if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs, cfg.w_com) < 0:
@@ -94,7 +95,7 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
     if raw.shape[:-1] != target.shape[:-1] or raw.shape[-1] != 13 or target.shape[-1] != 12:
         raise ValueError(f"loss shapes: raw {tuple(raw.shape)} must be (..., 13) and target "
                          f"{tuple(target.shape)} (..., 12) over the same steps")
-    per_step = {}
+    per_step: dict[str, Any] = {}  # name -> per-step loss tensor
     for name, sl in COMPONENTS:
         fn = relative_l1 if name == "rot" else relative_l2
         per_step[name] = fn(raw[..., sl], target[..., sl], cfg.eps, cfg.relative_to == "both")

@@ -341,6 +341,8 @@ _fused_lstm_rollout = _compile(_fused_lstm_rollout)
 class DynamicsModel(nn.Module):
     """Shape encoder + state predictor. See the module docstring for the data flow."""
 
+    scales: Tensor  # buffer (STAT_KEYS order): the normalisation scales
+
     def __init__(self, cfg: ModelConfig, stats: Optional[dict[str, float]] = None) -> None:
         super().__init__()
         self.cfg = cfg
@@ -391,6 +393,7 @@ class DynamicsModel(nn.Module):
         if self.cfg.prior != "none":
             # a zero residual: the untrained network is exactly the prior (the motion part; topple logit 0)
             last = self.head if self.cfg.cell == "lstm" else self.mlp[-1]
+            assert isinstance(last, nn.Linear)
             nn.init.zeros_(last.weight)
 
     def set_normalization(self, stats: dict[str, float]) -> None:
@@ -575,6 +578,7 @@ class DynamicsModel(nn.Module):
         if obs_vel is None:
             x_obs = x0.new_zeros(x0.shape[0], 0, 6)
         else:
+            assert obs_angvel is not None, "obs_vel and obs_angvel go together"
             x_obs = self._inputs(obs_vel, obs_angvel, fast)[:, :steps]
         prior = (torch.stack(self._prior_decel(feature), -1) if self.cfg.prior == "sliding"
                  else x0.new_zeros(0, 2))
@@ -587,9 +591,9 @@ class DynamicsModel(nn.Module):
                                      prior, fast["in"], fast["out"])
             kernel = self._kernel(fast)
             if x0.shape[0] == 1 and "np_w0" in kernel and x0.device.type == "cpu" and x0.dtype == torch.float32:
-                raw, xs = self._numpy_kernel(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(), int(steps),
-                                             prior.numpy())
-                return torch.from_numpy(raw)[None], torch.from_numpy(xs)[None]
+                raw_np, xs_np = self._numpy_kernel(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(),
+                                                   int(steps), prior.numpy())
+                return torch.from_numpy(raw_np)[None], torch.from_numpy(xs_np)[None]
             return self._fused_kernel(kernel, feature, x0, x_obs, int(steps), prior, fast)
         x, outs, xs = x0, [], [x0]
         for t in range(steps):  # the MLP baseline is not latency critical
@@ -645,17 +649,23 @@ class DynamicsModel(nn.Module):
                 if len(feature) == 1 and "np_w0" in kernel:  # (numpy weights exist for float32 CPU models)
                     scale_in = kernel["np_in"]
                     x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
-                    x_obs = (np.zeros((0, 6), np.float32) if obs_vel is None else
-                             (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps])
+                    if obs_vel is None:
+                        x_obs = np.zeros((0, 6), np.float32)
+                    else:
+                        assert obs_angvel is not None, "obs_vel and obs_angvel go together"
+                        x_obs = (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps]
                     prior = None
                     if self.cfg.prior == "sliding":
                         prior = torch.stack(self._prior_decel(torch.from_numpy(np.asarray(feature, np.float32))),
                                             -1).numpy()
-                    raw, xs = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps),
-                                                 prior)
-                    return raw[None], xs[None], {"in": scale_in, "out": kernel["np_out"]}
+                    raw_np, xs_np = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs,
+                                                       int(steps), prior)
+                    return raw_np[None], xs_np[None], {"in": scale_in, "out": kernel["np_out"]}
             device = fast["in"].device
-            tensor = lambda a: None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
+
+            def tensor(a: Any) -> Any:  # None (no observed states) stays None
+                return None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)
+
             raw, xs = self.rollout_raw(tensor(feature), tensor(vel0), tensor(angvel0), steps, tensor(obs_vel),
                                        tensor(obs_angvel), fast)
             scales = {"in": fast["in"].float().cpu().numpy(), "out": fast["out"].float().cpu().numpy()}

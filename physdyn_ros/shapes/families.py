@@ -591,10 +591,10 @@ def _gear(rng: np.random.Generator) -> _Built:
     for i in range(n):
         mid = np.pi / n + 2 * np.pi * i / n
         u, t = np.array([np.cos(mid), np.sin(mid)]), np.array([-np.sin(mid), np.cos(mid)])
-        outline = [apothem * u - base / 2 * t, apothem * u + base / 2 * t]
-        outline += [(apothem + length) * u] if tip == 0 else [(apothem + length) * u + tip / 2 * t,
+        corners = [apothem * u - base / 2 * t, apothem * u + base / 2 * t]
+        corners += [(apothem + length) * u] if tip == 0 else [(apothem + length) * u + tip / 2 * t,
                                                                (apothem + length) * u - tip / 2 * t]
-        outline = np.asarray(outline)
+        outline = np.asarray(corners)
         pieces.append(frustum_points(outline, 0.0, outline, thick))
     return _pieces(pieces, {"kind": "star" if star else "gear", "teeth": n, "hub_radius": _r(hub),
                             "thickness": _r(thick), "tooth": _r([base, tip, length])})

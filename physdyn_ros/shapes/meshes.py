@@ -9,6 +9,7 @@ import os
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -40,12 +41,12 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray]:
             v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.triangles, dtype=np.int64)
     except Exception:  # noqa: BLE001 - any reader failure falls through to trimesh
         v = None
-    if v is None or not len(f):
+    if v is None or f is None or not len(f):
         try:
             import trimesh
 
-            m = trimesh.load(str(path), force="mesh", process=False)
-            v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+            tm: Any = trimesh.load(str(path), force="mesh", process=False)  # a Trimesh (force="mesh")
+            v, f = np.asarray(tm.vertices, dtype=np.float64), np.asarray(tm.faces, dtype=np.int64)
         except Exception as exc:  # noqa: BLE001
             raise ValueError(f"cannot read mesh {path}: {exc}") from None
     if v is None or f is None or len(f) == 0 or f.ndim != 2 or f.shape[1] != 3:

@@ -194,20 +194,20 @@ def _speaker(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict]:
     taper_back = rng.uniform(0.0, 0.3) if rng.random() < 0.25 else 0.0
     # Octant samples of a sphere, `levels` latitude steps (ring i has i + 1 azimuths): with one level the
     # hull of the corner samples is a chamfer, with many a rounded edge.
-    dirs = []
+    dir_list = []
     for i in range(levels + 1):
         phi = 0.5 * np.pi * i / levels
         for az in np.linspace(0.0, 0.5 * np.pi, i + 1) if i else [0.0]:
-            dirs.append([np.sin(phi) * np.cos(az), np.sin(phi) * np.sin(az), np.cos(phi)])
-    dirs = np.asarray(dirs)
+            dir_list.append([np.sin(phi) * np.cos(az), np.sin(phi) * np.sin(az), np.cos(phi)])
+    dirs = np.asarray(dir_list)
     half = np.array([w, d, h]) / 2 - radius
-    pts = []
+    corners = []
     for sx in (-1, 1):
         for sy in (-1, 1):
             for sz in (-1, 1):
                 sgn = np.array([sx, sy, sz])
-                pts.append(sgn * half + radius * dirs * sgn)
-    pts = np.vstack(pts)
+                corners.append(sgn * half + radius * dirs * sgn)
+    pts = np.vstack(corners)
     if radius == 0:
         pts = np.unique(pts, axis=0)
     zf = (pts[:, 2] + h / 2) / h  # 0 at the bottom, 1 at the top

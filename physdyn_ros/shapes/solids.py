@@ -137,17 +137,19 @@ def _subtract(poly: np.ndarray, normal: np.ndarray, planes: tuple[np.ndarray, np
     active = ~on
     if np.any(np.all(s[:, active] >= -_TOL, axis=0)):  # on or outside one of the piece's planes
         return [poly]
-    out, inside = [], poly
+    out: list[np.ndarray] = []
+    inside = poly
     for k in np.flatnonzero(active):
         si = inside @ N[k] - D[k]
         if np.all(si <= _TOL):
             continue
         outer = _clip(inside, N[k], D[k], keep_below=False)
-        inside = _clip(inside, N[k], D[k], keep_below=True)
-        if _area(outer) > _AREA:
+        clipped = _clip(inside, N[k], D[k], keep_below=True)
+        if outer is not None and _area(outer) > _AREA:
             out.append(outer)
-        if _area(inside) <= _AREA:
+        if clipped is None or _area(clipped) <= _AREA:
             return [poly]  # the overlap is a sliver: keep the polygon whole
+        inside = clipped
     return out
 
 
@@ -177,7 +179,7 @@ def union_surface(pieces: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
             if near[t].any():
                 normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
                 normal /= np.linalg.norm(normal)
-                for j in np.flatnonzero(near[t]):
+                for j in np.flatnonzero(near[t]).tolist():
                     pieces_left = [q for p in pieces_left for q in _subtract(p, normal, planes[j], keep_same=j > i)]
                     if not pieces_left:
                         break
@@ -215,7 +217,8 @@ def _hull_2d(p: np.ndarray) -> np.ndarray:
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    lower, upper = [], []
+    lower: list[np.ndarray] = []
+    upper: list[np.ndarray] = []
     for q in pts:
         while len(lower) >= 2 and cross(lower[-2], lower[-1], q) <= 1e-15:
             lower.pop()

@@ -12,6 +12,7 @@ Recording rules (the dataset format's per-frame arrays):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ def _empty_record(num_frames: int) -> dict[str, np.ndarray]:
             "lin_vel": np.zeros((num_frames, 3)), "ang_vel": np.zeros((num_frames, 3))}
 
 
-def record(sim: Simulator, num_frames: int = NUM_FRAMES) -> dict[str, np.ndarray]:
+def record(sim: Simulator, num_frames: int = NUM_FRAMES) -> dict[str, Any]:
     """Record the spawned object from its current state (frame 0) for num_frames frames, with rest padding and
     topple labels (see the module docstring). Returns float32 / bool / int32 arrays of the dataset format."""
     if num_frames < 2:
@@ -87,7 +88,7 @@ def record(sim: Simulator, num_frames: int = NUM_FRAMES) -> dict[str, np.ndarray
             rec["ang_vel"][r + 1:] = 0.0
             break
     toppled, topple_index = geo.topple_labels(rec["quat"])
-    out = {k: v.astype(np.float32) for k, v in rec.items()}
+    out: dict[str, Any] = {k: v.astype(np.float32) for k, v in rec.items()}  # arrays and numpy scalars
     out.update(toppled=toppled, length=np.int32(length), topple_index=np.int32(topple_index))
     return out
 
@@ -97,6 +98,7 @@ def sample_impulse(sim: Simulator, rng: np.random.Generator, push: PushConfig = 
     """A random impulse (N s, world) and its application point on the spawned object's surface (world)."""
     pos, q, _, _ = sim.state()
     rot = quat_to_matrix(q)
+    assert sim.shape is not None, "sample_impulse needs a spawned object"
     hull = (sim.shape.hull()[0] * sim.scale) @ rot.T + pos  # scaled hull in the world
     lo, hi = sim.aabb()
     height = hi[2] - max(lo[2], 0.0)
@@ -117,7 +119,7 @@ def sample_impulse(sim: Simulator, rng: np.random.Generator, push: PushConfig = 
         point = hit[0]
         inv_iw = np.linalg.inv(rot @ sim.inertia @ rot.T)
         unit = sim.mass * d
-        w_per = np.linalg.norm(inv_iw @ np.cross(point - pos, unit))
+        w_per = float(np.linalg.norm(inv_iw @ np.cross(point - pos, unit)))
         speed = min(speed, push.max_speed, push.max_spin / max(w_per, 1e-9))
         return unit * speed, point
     # Fallback (tiny or odd objects): push horizontally through the COM.
@@ -127,7 +129,7 @@ def sample_impulse(sim: Simulator, rng: np.random.Generator, push: PushConfig = 
 
 def simulate_push(sim: Simulator | None, shape: Shape, rng: np.random.Generator, push: PushConfig = PushConfig(),
                   friction: float | None = None, vary_friction: bool = False, num_frames: int = NUM_FRAMES,
-                  config: SimConfig = SimConfig()) -> dict[str, np.ndarray]:
+                  config: SimConfig = SimConfig()) -> dict[str, Any]:
     """One dataset simulation: random scale and yaw, settled upright, a random impulse, recorded roll-out.
 
     `friction` None means config.friction, or U(push.friction) when `vary_friction`. `sim` None creates (and
@@ -136,7 +138,7 @@ def simulate_push(sim: Simulator | None, shape: Shape, rng: np.random.Generator,
     friction, scale).
     """
     own = sim is None
-    sim = Simulator(config) if own else sim
+    sim = Simulator(config) if sim is None else sim
     try:
         scale = random_scale(shape, rng, push)
         yaw = rng.uniform(-np.pi, np.pi)
@@ -157,7 +159,7 @@ def simulate_push(sim: Simulator | None, shape: Shape, rng: np.random.Generator,
 
 def simulate_from_state(shape_or_hull_points: Shape | np.ndarray, scale, pos, quat, lin_vel, ang_vel,
                         friction: float | None = None, num_frames: int = NUM_FRAMES,
-                        config: SimConfig = SimConfig(), sim: Simulator | None = None) -> dict[str, np.ndarray]:
+                        config: SimConfig = SimConfig(), sim: Simulator | None = None) -> dict[str, Any]:
     """Re-simulate from a given initial state (frame 0) and record num_frames frames.
 
     `shape_or_hull_points` is a Shape or a raw (N, 3) point cloud in the object frame whose origin is the centre
@@ -169,7 +171,7 @@ def simulate_from_state(shape_or_hull_points: Shape | np.ndarray, scale, pos, qu
     shape = shape_or_hull_points if isinstance(shape_or_hull_points, Shape) else \
         shape_from_points(np.asarray(shape_or_hull_points))
     own = sim is None
-    sim = Simulator(config) if own else sim
+    sim = Simulator(config) if sim is None else sim
     try:
         sim.spawn(shape, scale=scale, friction=friction, settle=False)
         sim.set_pose(np.asarray(pos, float), np.asarray(quat, float))

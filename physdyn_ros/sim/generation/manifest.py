@@ -89,13 +89,13 @@ def dataset_counts(out: Path, manifest: dict) -> dict:
 
     from ...data.format import load_npz
 
-    idx, top, length = [], [], []
-    for e in manifest["shards"]:
+    parts: dict[str, list[np.ndarray]] = {"idx": [], "top": [], "length": []}
+    for e in manifest["shards"]:  # one shard in memory at a time
         a = load_npz(out / e["file"])
-        idx.append(a["shape_index"])
-        top.append(a["topple_index"] >= 0)
-        length.append(a["length"])
-    idx, top, length = np.concatenate(idx), np.concatenate(top), np.concatenate(length)
+        parts["idx"].append(a["shape_index"])
+        parts["top"].append(a["topple_index"] >= 0)
+        parts["length"].append(a["length"])
+    idx, top, length = (np.concatenate(parts[k]) for k in ("idx", "top", "length"))
     cat_of = np.array([s["category"] for s in sorted(manifest["shapes"], key=lambda s: s["index"])])
     split_of = {i: name for name, ids in manifest["splits"].items() for i in ids}
     split_arr = np.array([split_of.get(s["id"], "") for s in sorted(manifest["shapes"], key=lambda s: s["index"])])

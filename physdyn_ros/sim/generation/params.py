@@ -137,7 +137,8 @@ def resolve_params(args: argparse.Namespace) -> dict[str, Any]:
             raise ValueError(f"unknown {key} options {unknown}; known: {sorted(names)}")
     p["sim"].pop("vhacd_cache_dir", None)  # a path on this machine, not a data parameter
     sim_cfg = SimConfig(**{**p["sim"], "friction": p["friction"]})  # validates
-    push_cfg = PushConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["push"].items()})
+    push: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in p["push"].items()}
+    push_cfg = PushConfig(**push)  # validates
     p["sim"] = {k: v for k, v in sim_cfg.to_dict().items() if k != "vhacd_cache_dir"}
     p["push"] = {k: list(v) if isinstance(v, tuple) else v for k, v in push_cfg.to_dict().items()}
     return p

@@ -68,8 +68,8 @@ def _configs(p: dict[str, Any], cache_dir: str | None):
     from ..simulator import SimConfig
 
     sim_cfg = SimConfig(**{**p["sim"], "vhacd_cache_dir": cache_dir})
-    push_cfg = PushConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["push"].items()})
-    return sim_cfg, push_cfg
+    push: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in p["push"].items()}
+    return sim_cfg, PushConfig(**push)
 
 
 def _decompose(index: int) -> tuple[int, float]:
