@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from .. import geometry as geo
 from ..conventions import DT, NUM_POINTS, REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
@@ -122,21 +123,6 @@ def _continuous(quat: np.ndarray) -> np.ndarray:
         if np.dot(q[i], q[i - 1]) < 0:
             q[i] = -q[i]
     return q
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Row-wise spherical interpolation, w in [0, 1] (q0, q1 in the same hemisphere)."""
-    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
-    w = np.asarray(w, float)[:, None]
-    dot = np.clip(np.sum(q0 * q1, axis=1, keepdims=True), -1.0, 1.0)
-    theta = np.arccos(dot)
-    sin = np.sin(theta)
-    small = sin[:, 0] < 1e-9
-    out = np.empty_like(q0)
-    a = np.where(small[:, None], 1 - w, np.sin((1 - w) * theta) / np.where(small[:, None], 1.0, sin))
-    b = np.where(small[:, None], w, np.sin(w * theta) / np.where(small[:, None], 1.0, sin))
-    out[:] = a * q0 + b * q1
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 # ------------------------------------------------------------------------------------------------- the bag
@@ -277,7 +263,11 @@ def sample(states: States, times: np.ndarray) -> dict[str, np.ndarray]:
     def lerp(a: np.ndarray) -> np.ndarray:
         return a[i] + (a[j] - a[i]) * w[:, None]
 
-    quat = slerp(states.quat[i], states.quat[j], w)
+    if len(t) > 1:  # scipy's Slerp over the recorded orientations, at the times clamped to the recording (as lerp)
+        slerp = Slerp((t - t[0]).astype(np.float64), Rotation.from_quat(states.quat))
+        quat = slerp((np.clip(times, t[0], t[-1]) - t[0]).astype(np.float64)).as_quat()
+    else:
+        quat = Rotation.from_quat(np.repeat(states.quat[:1], len(times), axis=0)).as_quat()
     quat = np.where(quat[:, 3:4] < 0, -quat, quat)
     nan = np.full((len(times), 3), np.nan)
     return {"pos": lerp(states.pos), "quat": quat,
