@@ -20,7 +20,7 @@ __all__ = [
 ]
 
 
-def _f64(x: np.ndarray | list | tuple) -> np.ndarray:
+def _f64(x: np.ndarray | list | tuple | float) -> np.ndarray:
     return np.asarray(x, dtype=np.float64)
 
 

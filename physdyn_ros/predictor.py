@@ -388,7 +388,7 @@ class Predictor:
         phys = np.concatenate([raw[..., 6:12] * scales["out"][6:12], xs[:, 1:] * scales["in"]], -1)
         vec = _yaw_rotate(phys.reshape(phys.shape[:2] + (4, 3)).astype(np.float64), headings)
         d_pos, d_rot = vec[:, :, 0], vec[:, :, 1]
-        if k:  # observed frames keep their observed poses
+        if obs is not None and k:  # observed frames keep their observed poses
             pos_seq = np.concatenate([p0[:1], obs["positions"]])
             q_obs = obs["orientations"] / np.linalg.norm(obs["orientations"], axis=1, keepdims=True)
             q_seq = np.concatenate([q0[:1], q_obs])

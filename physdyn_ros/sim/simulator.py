@@ -407,6 +407,7 @@ class Simulator:
 
         (pybullet's getAABB is looser: it bounds the rotated local box and adds the collision margin.)"""
         self._require_body()
+        assert self.shape is not None  # set together with the body
         pos, q, _, _ = self.state()
         pts = (self.shape.hull()[0] * self.scale) @ quat_to_matrix(q).T + pos
         return pts.min(0), pts.max(0)
