@@ -41,7 +41,7 @@ from visualization_msgs.msg import MarkerArray
 from ..conventions import TABLE_FRAME
 from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
 from ..ros.cloud import cloud_to_xyz
-from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
+from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy, yaw_quaternion
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
@@ -335,7 +335,7 @@ class PredictorNode(ManagedNode):
         source = self._param("initial_pose_source")
         if source == "shape_feature":
             h = float(feat.heading)
-            return xyz_to_numpy(feat.centroid), np.array([0.0, 0.0, np.sin(h / 2), np.cos(h / 2)])
+            return xyz_to_numpy(feat.centroid), yaw_quaternion(h)
         best, _ = self.state_at(object_id, t_ns)
         if best is None:
             raise RequestError(f"no object_state of '{object_id}' at or before the push (initial_pose_source "
@@ -622,7 +622,7 @@ class PredictorNode(ManagedNode):
         res.contact_point.x, res.contact_point.y, res.contact_point.z = map(float, plan.contact_point)
         res.mass = float(plan.mass)
         fy = plan.final_pose.yaw
-        res.predicted_final_pose = pose(plan.final_position, [0.0, 0.0, np.sin(fy / 2), np.cos(fy / 2)])
+        res.predicted_final_pose = pose(plan.final_position, yaw_quaternion(fy))
         res.predicted_position_error = float(plan.position_error)
         res.predicted_yaw_error = float(plan.yaw_error)
         res.within_tolerance = bool(plan.within_tolerance)
