@@ -260,3 +260,28 @@ def test_up_without_autostart_leaves_the_nodes_to_a_lifecycle_manager(rclpy_init
             assert call(predict, predict_request(), SLOW).success
     log = (tmp_path / "logs" / "predictor.log").read_text()
     assert "autostart false" in log and "active: model tiny-test-" in log
+
+
+def test_a_destroyed_or_failed_managed_node_leaves_the_graph(rclpy_init, tmp_path):
+    """rclpy (Jazzy) keeps a LifecycleNode's rcl node alive through its state machine: destroyed nodes stayed in
+    every process's graph (the demo then refused to start: "nodes ['sim', 'perception'] already run")."""
+    import pytest
+
+    from physdyn_ros.ros.model import ModelLoadError
+
+    observer = rclpy_init.create_node(f"observer_{uuid.uuid4().hex[:8]}")
+    try:
+        def listed(name: str) -> bool:
+            return name in observer.get_node_names()
+
+        node = PredictorNode(parameter_overrides=[Parameter("autostart", value=False)])
+        assert wait_for(lambda: listed("predictor"), SLOW)
+        node.destroy_node()
+        assert wait_for(lambda: not listed("predictor"), SLOW), "a destroyed managed node is still in the graph"
+        # autostart with a model that cannot be loaded: the constructor raises and the node is gone too
+        with pytest.raises(ModelLoadError, match="cannot load model from"):
+            PredictorNode(parameter_overrides=[Parameter("model_path", value=str(tmp_path / "missing.pt"))])
+        time.sleep(1.0)
+        assert not listed("predictor"), "a node whose autostart failed is still in the graph"
+    finally:
+        observer.destroy_node()

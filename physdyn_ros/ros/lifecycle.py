@@ -119,12 +119,18 @@ class ManagedNode(LifecycleNode):
         if not self.autostart:
             self.get_logger().info("unconfigured (autostart false): waiting for configure and activate")
             return
-        for trigger, what in ((self.trigger_configure, "configure"), (self.trigger_activate, "activate")):
-            if trigger() != SUCCESS:
-                failure, self._failure = self._failure, None
-                if failure is not None:
-                    raise failure
-                raise RuntimeError(f"{what} failed: {self.transition_error or 'see the log'}")
+        try:
+            for trigger, what in ((self.trigger_configure, "configure"), (self.trigger_activate, "activate")):
+                if trigger() != SUCCESS:
+                    failure, self._failure = self._failure, None
+                    if failure is not None:
+                        raise failure
+                    raise RuntimeError(f"{what} failed: {self.transition_error or 'see the log'}")
+        except BaseException:
+            # The caller never gets this node to destroy: do it now, so that it leaves the ROS graph at once
+            # (an undestroyed node stayed listed by other processes until its participant's lease ran out).
+            self.destroy_node()
+            raise
 
     # -------------------------------------------------------------------------------------------- entities
     def configured_publisher(self, msg_type, topic: str, qos) -> Any:
@@ -246,6 +252,13 @@ class ManagedNode(LifecycleNode):
                 self.get_logger().error(f"deactivate: {type(exc).__name__}: {exc}")
         self._release()
         return SUCCESS
+
+    def destroy_node(self) -> None:
+        super().destroy_node()
+        # Jazzy's rclpy never destroys the lifecycle state machine, which holds the rcl node: the node stayed in
+        # the ROS graph of every other process until this one exited (test_ros_launch's demo then refused to
+        # start: "nodes ['sim', 'perception'] already run"). Destroying it lets the node go.
+        self._state_machine.destroy_when_not_in_use()
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         """An exception escaped a transition: release everything and return to unconfigured."""
