@@ -285,3 +285,48 @@ def test_a_destroyed_or_failed_managed_node_leaves_the_graph(rclpy_init, tmp_pat
         assert not listed("predictor"), "a node whose autostart failed is still in the graph"
     finally:
         observer.destroy_node()
+
+
+def test_an_action_server_accepts_goals_only_while_active(rclpy_init):
+    """ManagedNode.configured_action_server (for action nodes such as the pusher): rejected unless active, gone
+    after cleanup."""
+    import pytest
+
+    action = pytest.importorskip("physdyn_ros.action")
+    from rclpy.action import ActionClient
+
+    from physdyn_ros.ros.lifecycle import ManagedNode
+
+    class Echo(ManagedNode):
+        def __init__(self) -> None:
+            super().__init__(f"echo_{uuid.uuid4().hex[:8]}", parameter_overrides=[Parameter("autostart", value=False)])
+            self.start()
+
+        def configure(self) -> None:
+            self.configured_action_server(action.PushToGoal, "echo_goal", self.execute)
+
+        def execute(self, goal_handle):
+            goal_handle.succeed()
+            return action.PushToGoal.Result(success=True, message="done")
+
+    node = Echo()
+    m = Manager(rclpy_init, node.get_name())
+    client = ActionClient(m.node, action.PushToGoal, "echo_goal")
+
+    def send():
+        future = client.send_goal_async(action.PushToGoal.Goal())
+        assert wait_for(future.done, SLOW), "no answer to the goal"
+        return future.result()
+
+    with Spinner(node, m.node):
+        assert m.configure() and client.wait_for_server(timeout_sec=SLOW)
+        assert not send().accepted and node.refused_inactive == 1  # inactive
+        assert m.activate()
+        handle = send()
+        assert handle.accepted
+        result = handle.get_result_async()
+        assert wait_for(result.done, SLOW) and result.result().result.message == "done"
+        assert m.deactivate() and not send().accepted
+        assert m.cleanup()
+        assert wait_for(lambda: not client.server_is_ready(), SLOW), "the action server outlived cleanup"
+        client.destroy()

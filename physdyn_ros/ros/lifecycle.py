@@ -20,7 +20,8 @@ The standard ROS 2 state machine (rclpy.lifecycle.LifecycleNode, the services <n
   simulator, the tf listener's thread) releases it in its own destroy_node.
 
 Subclasses implement the four hooks and create their entities through configured_publisher / configured_service
-/ configured_timer (destroyed on cleanup) and active_subscription (destroyed on deactivate).
+/ configured_timer / configured_action_server (destroyed on cleanup) and active_subscription (destroyed on
+deactivate), and call self.start() at the end of __init__.
 """
 from __future__ import annotations
 
@@ -165,6 +166,24 @@ class ManagedNode(LifecycleNode):
         self._configured.append(("timer", timer))
         return timer
 
+    def configured_action_server(self, action_type, name: str, execute_callback: Callable,
+                                 goal_callback: Callable | None = None, **kwargs) -> Any:
+        """An rclpy ActionServer from configure to cleanup that accepts goals only while active (a goal otherwise
+        is rejected, with the reason logged: the action protocol carries none). A running goal is not stopped by
+        deactivate: its execute callback should check `is_active` between steps and abort with not_serving()."""
+        from rclpy.action import ActionServer, GoalResponse
+
+        def accept(goal_request):
+            if not self.is_active:
+                self.refused_inactive += 1
+                self.get_logger().warning(f"{name}: goal rejected: {self.not_serving()}")
+                return GoalResponse.REJECT
+            return goal_callback(goal_request) if goal_callback is not None else GoalResponse.ACCEPT
+
+        server = ActionServer(self, action_type, name, execute_callback, goal_callback=accept, **kwargs)
+        self._configured.append(("action_server", server))
+        return server
+
     def active_subscription(self, msg_type, topic: str, callback: Callable, qos, **kwargs) -> Any:
         """A subscription from activate to deactivate (latched topics are delivered again on activation)."""
         sub = self.create_subscription(msg_type, topic, callback, qos, **kwargs)
@@ -191,6 +210,8 @@ class ManagedNode(LifecycleNode):
                 self.destroy_lifecycle_publisher(entity)
             elif kind == "service":
                 self.destroy_service(entity)
+            elif kind == "action_server":
+                entity.destroy()
             else:
                 self.destroy_timer(entity)
 
