@@ -159,15 +159,16 @@ def trajectory_markers(msg: PredictedTrajectory, half_extents=None, heading: flo
         box_in_body = geo.quat_multiply(geo.quat_conjugate(q0), geo.yaw_quat(heading))
         last = len(msg.states) - 1
         steps = sorted(set(range(0, last + 1, max(1, int(box_every)))) | {last})
-        for k in steps:
+        poses = [pose_to_numpy(msg.states[k].pose, zero_is_identity=True) for k in steps]
+        # every cube's orientation in one scipy call (a Rotation product costs ~60 us per call, whatever its size)
+        box_quats = geo.quat_multiply(np.array([q for _, q in poses]), box_in_body)
+        for k, (pos, _), qb in zip(steps, poses, box_quats):
             s = msg.states[k]
-            pos, q = pose_to_numpy(s.pose, zero_is_identity=True)
             p = float(np.clip(s.topple_probability, 0.0, 1.0))
             cube = Marker(header=header, ns=BOX_NS, id=k, type=Marker.CUBE, action=Marker.ADD,
                           scale=Vector3(x=size[0], y=size[1], z=size[2]),
                           color=ColorRGBA(r=0.2 + 0.8 * p, g=0.4 * (1 - p), b=1.0 - p, a=0.35 if k < last else 0.7))
             cube.pose.position = point(pos)
-            qb = geo.quat_multiply(q, box_in_body)
             cube.pose.orientation.x, cube.pose.orientation.y, cube.pose.orientation.z, cube.pose.orientation.w = (
                 float(c) for c in qb / np.linalg.norm(qb))
             markers.append(cube)
