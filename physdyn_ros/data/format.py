@@ -12,8 +12,9 @@ import json
 import os
 import tempfile
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -39,16 +40,24 @@ def shard_name(index: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- atomic writing
-def atomic_write(path: Path, write) -> None:
-    """Write `path` through `write(binary file)` into a temporary file in the same folder, fsync, rename."""
+# The package's one atomic writer: every file a reader may open while it is written (datasets, checkpoints, bag
+# metadata, report PNGs, cached convex decompositions) goes through atomic_path / atomic_write.
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary file in `path`'s folder (hidden name `.<name>.*.tmp`) for a writer that takes a path (e.g.
+    pybullet's V-HACD): when the block ends it is fsynced and renamed onto `path`; on an exception it is deleted
+    and `path` is left as it was. A reader, or an interrupted writer, never sees a truncated `path`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
+        yield Path(tmp)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -56,6 +65,13 @@ def atomic_write(path: Path, write) -> None:
         except FileNotFoundError:
             pass
         raise
+
+
+def atomic_write(path: Path, write: Callable[[Any], Any]) -> None:
+    """Write `path` through `write(binary file)` into a temporary file in the same folder, fsync, rename."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            write(fh)
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray], compress: bool = True) -> bytes:

@@ -41,6 +41,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..conventions import DT, GRAVITY, REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
+from ..data.format import atomic_path
 from ..geometry import matrix_to_quat, quat_normalize, quat_to_matrix, up_tilt_angle, yaw_quat
 from ..shapes.core import DEFAULT_DENSITY, Shape
 
@@ -163,19 +164,17 @@ def convex_decomposition(shape: Shape, config: SimConfig = SimConfig()) -> Path:
     """OBJ file of the convex decomposition of `shape` (unscaled), computed once and cached on disk: its own
     convex pieces when it has them (`shape.parts`, milliseconds), else V-HACD's (seconds).
 
-    The cache key is the geometry hash plus the V-HACD settings; files are written under a temporary name and
-    renamed, so concurrent workers and interrupted runs never leave a truncated decomposition.
+    The cache key is the geometry hash plus the V-HACD settings; files are written through the package's atomic
+    writer (data.format.atomic_path: a temporary name, then a rename), so concurrent workers and interrupted runs
+    never leave a truncated decomposition.
     """
     cache = vhacd_cache_dir(config)
     if shape.parts:
         out = cache / f"{hashlib.sha256(f'{shape.fingerprint()}:parts:v1'.encode()).hexdigest()[:32]}.obj"
         if out.is_file() and out.stat().st_size > 0:
             return out
-        cache.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=cache, prefix=".parts-") as tmp:
-            dst = Path(tmp) / "out.obj"
+        with atomic_path(out) as dst:
             _write_parts_obj(dst, shape.parts)
-            os.replace(dst, out)
         return out
 
     with quiet_stdout(stderr=True):
@@ -186,14 +185,13 @@ def convex_decomposition(shape: Shape, config: SimConfig = SimConfig()) -> Path:
     if out.is_file() and out.stat().st_size > 0:
         return out
     cache.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=cache, prefix=".vhacd-") as tmp:
-        src, dst, log = Path(tmp) / "in.obj", Path(tmp) / "out.obj", Path(tmp) / "log.txt"
+    with tempfile.TemporaryDirectory(dir=cache, prefix=".vhacd-") as tmp, atomic_path(out) as dst:
+        src, log = Path(tmp) / "in.obj", Path(tmp) / "log.txt"
         _write_obj(src, shape.vertices, shape.faces)
         with quiet_stdout():
             pybullet.vhacd(str(src), str(dst), str(log), resolution=int(config.vhacd_resolution))
         if not dst.is_file() or dst.stat().st_size == 0:
             raise RuntimeError(f"V-HACD failed for shape {shape.name}")
-        os.replace(dst, out)
     return out
 
 
