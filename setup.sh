@@ -99,6 +99,7 @@ step "check imports" "$VENV/bin/python" -c "
 import rclpy, open3d, pybullet, torch
 from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
 from physdyn_ros.srv import PlanPush, PredictTrajectory, PushObject, SpawnObject
+from physdyn_ros.action import PushToGoal
 import physdyn_ros.cli
 print('torch', torch.__version__)"
 step "check physdyn command" "$VENV/bin/physdyn" --help

@@ -33,7 +33,7 @@ from ..conventions import TABLE_FRAME
 from ..msg import ShapeFeature
 from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
-from ..ros.cloud import cloud_size, cloud_to_xyz
+from ..ros.cloud import cloud_size, cloud_to_xyz, xyz_to_cloud
 from ..ros.convert import point, time_to_ns, vector3
 from ..ros.model import load_predictor
 from ..ros.params import declare
@@ -125,6 +125,8 @@ class PerceptionNode(ManagedNode):
         declare(self, "min_points", d.min_points, "clusters with fewer points are not objects; fewer points in "
                 "all: no feature (warning)", low=1)
         declare(self, "publish_markers", True, "publish each object's outline and id on object_markers")
+        declare(self, "feature_points", 1024, "points of each object sent with its feature (ShapeFeature.points, "
+                "what plan_push pushes on); 0 = none", low=0, high=100_000)
         self.predictor = None  # the encoder: loaded on configure, released on cleanup
         self._rng = np.random.default_rng(0)
         self.tracker = Tracker()
@@ -264,8 +266,17 @@ class PerceptionNode(ManagedNode):
                 header=header, object_id=object_id, model_id=self.predictor.model_id,
                 feature=np.asarray(code.feature, dtype=np.float32).reshape(-1).tolist(),
                 heading=float(code.heading), centroid=point(code.centroid), half_extents=vector3(code.half_extents),
-                num_points=int(len(obj.points))))
+                num_points=int(len(obj.points)), points=self.feature_points(obj.points, header)))
         return features, self.markers(header, labelled), ""
+
+    def feature_points(self, points: np.ndarray, header: Header) -> PointCloud2:
+        """At most `feature_points` of an object's points (a random subset), for plan_push's contact geometry."""
+        n = int(self.get_parameter("feature_points").value)
+        if n <= 0:
+            return PointCloud2()
+        if len(points) > n:
+            points = points[np.sort(self._rng.choice(len(points), n, replace=False))]
+        return xyz_to_cloud(points, header.frame_id, header.stamp)
 
     def markers(self, header: Header, labelled) -> MarkerArray:
         """DELETEALL, then per object a LINE_STRIP of its x-y convex hull on the table (z = 0, ns object_outline)

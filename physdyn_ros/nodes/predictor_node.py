@@ -38,7 +38,7 @@ from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
-from ..conventions import TABLE_FRAME
+from ..conventions import REST_ANG_VEL, REST_LIN_VEL, TABLE_FRAME
 from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
 from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy, yaw_quaternion
@@ -134,7 +134,7 @@ class PredictorNode(ManagedNode):
                 "before it predicts on its own; > 0 publishes a corrected trajectory for each observed state, up to "
                 "steps_in", low=0)
         declare(self, "box_every", 10, "a CUBE marker every this many steps (and at the last)", low=1)
-        declare(self, "plan_time_budget", 0.5, "s of planning per plan_push request (default of the request's "
+        declare(self, "plan_time_budget", 0.2, "s of planning per plan_push request (default of the request's "
                 "time_budget)", low=0.01, high=30.0)
         declare(self, "plan_max_speed", 1.5, "m/s, fastest push plan_push may choose (request default)", low=0.01)
         declare(self, "plan_max_topple_probability", 0.2, "plan_push rejects pushes predicted to topple more "
@@ -142,6 +142,10 @@ class PredictorNode(ManagedNode):
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)
+        declare(self, "plan_min_contact_height", 0.005, "m above the table: lowest point a pusher can touch",
+                low=0.0, high=2.0)
+        declare(self, "plan_max_contact_height", 0.5, "m above the table: highest point a pusher can touch",
+                low=0.001, high=2.0)
         declare(self, "plan_density", 0.0, "kg/m^3, for the mass estimate (hull volume x density) when a request "
                 f"gives no mass; 0 = the simulator's density ({DEFAULT_DENSITY:g}, shapes.DEFAULT_DENSITY)",
                 low=0.0, high=MAX_DENSITY)
@@ -312,6 +316,33 @@ class PredictorNode(ManagedNode):
             raise RequestError(f"shape feature has {len(feat.feature)} numbers, the model expects "
                                f"{self.predictor.feature_dim}")
         return feat
+
+    def feature_cloud(self, feat: ShapeFeature) -> np.ndarray | None:
+        """The points a feature carries (ShapeFeature.points, table frame), or None when it has none."""
+        if feat.points.width * feat.points.height == 0:
+            return None
+        self.check_frame(feat.points.header.frame_id or self.table_frame, "shape feature points")
+        try:
+            pts = cloud_to_xyz(feat.points, max_points=100_000, rng=np.random.default_rng(0))
+        except ValueError as exc:
+            raise RequestError(f"shape feature points: {exc}") from None
+        return pts if len(pts) >= 4 else None
+
+    def repose(self, points: np.ndarray, object_id: str, t_ns: int, pose: tuple[np.ndarray, np.ndarray]
+               ) -> np.ndarray:
+        """Points observed at t_ns moved with the object to `pose` (position, quaternion): the object_state at
+        t_ns says where it was then (a feature from before the last push still gives the right surface)."""
+        from scipy.spatial.transform import Rotation
+
+        then, exact = self.state_at(object_id, t_ns)
+        if then is None:
+            return points
+        lin, ang = twist_to_numpy(then.twist)
+        if not exact and (np.linalg.norm(lin) >= REST_LIN_VEL or np.linalg.norm(ang) >= REST_ANG_VEL):
+            return points  # the object moved between that state and the cloud: its pose then is unknown
+        p0, q0 = pose_to_numpy(then.pose, zero_is_identity=True)
+        rot = Rotation.from_quat(pose[1]) * Rotation.from_quat(q0).inv()
+        return rot.apply(points - p0) + pose[0]
 
     def shape_code(self, feat: ShapeFeature):
         from ..predictor import ShapeCode
@@ -572,6 +603,8 @@ class PredictorNode(ManagedNode):
                              time_budget=req.time_budget or float(self._param("plan_time_budget")),
                              max_topple_probability=float(self._param("plan_max_topple_probability")),
                              density=float(self._param("plan_density")) or DEFAULT_DENSITY,
+                             min_contact_height=float(self._param("plan_min_contact_height")),
+                             max_contact_height=float(self._param("plan_max_contact_height")),
                              table=TableBounds(*bounds) if bounds else None)
 
     def plan_start(self, req: PlanPush.Request, object_id: str):
@@ -590,7 +623,7 @@ class PredictorNode(ManagedNode):
             p, q = pose_to_numpy(pose_msg, zero_is_identity=True)
         except ValueError as exc:
             raise RequestError(f"start pose: {exc}") from None
-        return Pose2D(float(p[0]), float(p[1]), float(yaw_of(q)))
+        return Pose2D(float(p[0]), float(p[1]), float(yaw_of(q))), (p, q)
 
     def _on_plan(self, req: PlanPush.Request, res: PlanPush.Response) -> PlanPush.Response:
         from ..planning import Goal, Pose2D, yaw_of
@@ -607,11 +640,16 @@ class PredictorNode(ManagedNode):
                         req.position_tolerance or float(self._param("plan_position_tolerance")),
                         req.yaw_tolerance or float(self._param("plan_yaw_tolerance")))
             object_id, cloud, shape = self.request_shape(req, None)
+            start, start_pose = self.plan_start(req, object_id)
+            if cloud is None:  # the feature's own points, when perception sent them: contacts on the surface
+                feat = self.select_feature(object_id, None)
+                cloud = self.feature_cloud(feat)
+                if cloud is not None:
+                    cloud = self.repose(cloud, object_id, time_to_ns(feat.header.stamp), start_pose)
             if req.mass > 0:
                 check_mass(req.mass, cloud if cloud is not None else shape)
-            shape = cloud if cloud is not None else shape
-            start = self.plan_start(req, object_id)
-            plan = self.planner.plan(shape, start, goal, mass=req.mass or None, config=cfg)
+            plan = self.planner.plan(shape if shape is not None else cloud, start, goal, cloud=cloud,
+                                     mass=req.mass or None, config=cfg)
         except Exception as exc:  # noqa: BLE001 - answer with the reason, never crash on a request
             return self.refuse("plan_push", res, exc)
         stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()

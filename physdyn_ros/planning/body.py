@@ -1,35 +1,48 @@
-"""The pushed body as the planner sees it: centre of mass, mass, inertia and the cross-section at COM height.
+"""The pushed body as the planner sees it: centre of mass, mass, inertia and the observed surface points.
 
-The planner searches over *velocities* (what the dynamics model takes); a robot or the simulator needs an
-*impulse at a contact point*. This module converts one into the other, for a horizontal push at the height of
-the centre of mass (no tipping moment from the push itself):
+The planner searches over pushes a robot can make: a horizontal push in direction d with speed s, touching the
+object at a point c of its visible surface. The dynamics model takes *velocities*; a robot or the simulator
+needs an *impulse at a contact point*. This module converts one into the other:
 
-    push direction d (unit, horizontal), speed s, lateral offset e of the line of push from the COM
-    (along n = d rotated +90 deg about z):
-        impulse J = m s d                                (m: the given mass, or the estimate below)
-        contact point c = com + s_in d + e n             (s_in < 0: where the line of push enters the section)
-        lin_vel v = J / m = s d
-        ang_vel w = I^-1 (r x J) = -s e (I/m)^-1 z       (r = c - com; n x d = -z; the mass cancels)
-    |e| is bounded by the section's extent across d (support function), so every planned velocity pair is
-    producible by one contact: the spin of a push is tied to its speed and where it hits.
+    line of push: direction d (unit, horizontal), lateral offset e from the COM (along n = d rotated +90 deg
+    about z), height h above the table.
+    contact point c = the first surface point the line meets: among the observed points within `tube` of the
+        line, the one farthest back along d (where a pusher coming along d touches first). c is a point of the
+        cloud, so it lies on the object's observed surface (also for concave shapes, where the convex hull's
+        section lies up to centimetres outside the object).
+    impulse J = m s d                          (m: the given mass, or the hull estimate below)
+    lin_vel v = J / m = s d
+    ang_vel w = I^-1 (r x J) = (I/m)^-1 (r x v),  r = c - com (the mass cancels)
+    A push below the COM (r_z < 0) tips the object back against its forward topple; above the COM it tips it
+    forward. The dataset's pushes were made the same way (sim.push: rays at 5-70 % of the object's height),
+    so the learned model knows these initial velocities.
 
 Where the numbers come from:
 * from a cloud (preferred): the solid convex hull of the observed points (open3d's qhull, via
   physdyn_ros.shapes). COM = the hull's centroid, inertia per unit mass = the hull's (exact for convex objects;
-  for concave ones, a mug, the hull slightly overestimates the radius of gyration), mass = hull volume *
-  density (the simulator's density by default; pass the real mass when it is known, it only scales J).
-  The section is the hull cut by the plane z = COM height (a convex polygon).
-* from a ShapeCode only (a perception node's shape feature, no points): a solid box with the code's half
-  extents, rotated by its heading, centred at its centroid. Cruder, documented as such in the plan's `body`.
+  for concave ones the hull slightly overestimates the radius of gyration), mass = hull volume * density (the
+  simulator's density by default; pass the real mass when it is known, it only scales J). Contacts come from
+  the points themselves.
+* from a ShapeCode only (a shape feature without points): a solid box with the code's half extents, rotated by
+  its heading, centred at its centroid; contacts on the box's sampled faces. Cruder, reported as "box".
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .. import geometry as geo
 from ..shapes.core import DEFAULT_DENSITY, convex_hull, mass_properties
+
+#: Points kept for contact search (a random subset of larger clouds: the cost is candidates x points).
+MAX_CONTACT_POINTS = 2048
+#: Bounds of the tube around a line of push within which points count as on the line (m); in between, the
+#: cloud's own median point spacing.
+TUBE_RANGE = (0.002, 0.01)
+#: Contacts stay this far (m) inside the object's height range: a pusher cannot touch the very bottom edge.
+EDGE_MARGIN = 0.003
 
 
 class BodyError(ValueError):
@@ -38,107 +51,97 @@ class BodyError(ValueError):
 
 @dataclass(frozen=True)
 class PushBody:
-    """Mass properties and COM-height cross-section, table-frame axes, of the object as observed."""
+    """Mass properties and surface points (table-frame axes) of the object as observed."""
 
     com: np.ndarray  # (3,) m, centre of mass in the table frame (at the observed pose)
     mass: float  # kg, estimate (volume * density) unless given
     inertia_per_mass: np.ndarray  # (3, 3) m^2, inertia about the COM / mass, table axes
-    section: np.ndarray  # (K, 2) m, CCW convex polygon at COM height, relative to the COM (x, y)
+    points: np.ndarray  # (N, 3) m, observed surface points relative to the COM
+    tube: float  # m, half width of a line of push's tube (see the module docstring)
     source: str  # "hull" (from points) or "box" (from a shape code's half extents)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mass) and self.mass > 0):
             raise BodyError(f"mass must be positive and finite, got {self.mass}")
-        if len(self.section) < 3:
-            raise BodyError("the cross-section at COM height has fewer than 3 corners")
+        if len(self.points) < 4:
+            raise BodyError("fewer than 4 surface points to push on")
 
     # -------------------------------------------------------------------------------------------- queries
-    def lever_limits(self, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Largest offsets (>= 0) of a line of push from the COM, to the +n and to the -n side, for (B, 2)
-        unit directions d (n = d rotated +90 deg)."""
-        n = np.stack([-directions[:, 1], directions[:, 0]], axis=1)
-        proj = n @ self.section.T  # (B, K)
-        return np.maximum(proj.max(axis=1), 0.0), np.maximum(-proj.min(axis=1), 0.0)
+    @property
+    def bottom(self) -> float:
+        """Lowest surface point, m above the table frame's origin."""
+        return float(self.com[2] + self.points[:, 2].min())
 
-    def offsets(self, directions: np.ndarray, fractions: np.ndarray) -> np.ndarray:
-        """Signed lateral offsets e (m) for fractions in [-1, 1] of the lever limit on that side."""
-        pos, neg = self.lever_limits(directions)
-        return np.where(fractions >= 0, fractions * pos, fractions * neg)
+    @property
+    def top(self) -> float:
+        return float(self.com[2] + self.points[:, 2].max())
 
-    def angular_velocity(self, speeds: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """(B, 3) angular velocity right after a horizontal push of speed s whose line passes e from the COM."""
-        col = np.linalg.solve(self.inertia_per_mass, np.array([0.0, 0.0, 1.0]))
-        return -(speeds * offsets)[:, None] * col[None, :]
+    def height_range(self, low: float, high: float) -> tuple[float, float]:
+        """Contact heights (m, table frame) a pusher reaching heights [low, high] can use on this object."""
+        lo = max(float(low), self.bottom + EDGE_MARGIN)
+        hi = min(float(high), self.top - EDGE_MARGIN)
+        if lo > hi:
+            raise BodyError(f"the object spans heights {self.bottom:.3f}-{self.top:.3f} m, outside the reachable "
+                            f"contact heights {low:g}-{high:g} m")
+        return lo, hi
 
-    def contact_points(self, directions: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """(B, 3) points in the table frame where lines of push (direction d, offset e) enter the section.
+    def radius(self) -> float:
+        """Largest horizontal distance of a surface point from the COM (m)."""
+        return float(np.linalg.norm(self.points[:, :2], axis=1).max())
 
-        Lines that miss the section (offset beyond the lever limit: only from rounding) are moved onto its
-        extreme point across d.
+    def contacts(self, directions: np.ndarray, fractions: np.ndarray, heights: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Contact points (B, 3, table frame) and the lines' lateral offsets e (B,), m from the COM, for lines of push.
+
+        directions (B, 2) unit horizontal; fractions (B,) in [-1, 1]: the line's offset as a share of the
+        object's extent to the +n (> 0) or -n (< 0) side of the COM at that height; heights (B,) m, table frame.
+        A line that passes through a gap of the surface (a hole, between legs) is moved sideways to the nearest
+        points, so every candidate touches the object.
         """
         d = np.asarray(directions, dtype=np.float64)
         n = np.stack([-d[:, 1], d[:, 0]], axis=1)
-        pos, neg = self.lever_limits(d)
-        e = np.clip(offsets, -neg, pos)
-        v = self.section
-        edge = np.roll(v, -1, axis=0) - v  # (K, 2) CCW edges
-        # inside iff cross(edge_k, p - v_k) >= 0 for all k, with p = e n + s d: a_k + b_k s >= 0
-        base = e[:, None, None] * n[:, None, :] - v[None]  # (B, K, 2)
-        a = edge[None, :, 0] * base[..., 1] - edge[None, :, 1] * base[..., 0]
-        b = edge[None, :, 0] * d[:, None, 1] - edge[None, :, 1] * d[:, None, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lower = np.where(b > 1e-12, -a / b, -np.inf)
-        s_in = lower.max(axis=1)
-        s_in = np.where(np.isfinite(s_in), s_in, 0.0)
-        xy = e[:, None] * n + s_in[:, None] * d
-        return np.concatenate([xy + self.com[None, :2], np.full((len(d), 1), self.com[2])], axis=1)
+        p = self.points
+        lat = n @ p[:, :2].T  # (B, N)
+        along = d @ p[:, :2].T
+        dz = np.abs(p[None, :, 2] + self.com[2] - np.asarray(heights, dtype=np.float64)[:, None])
+        slab = dz <= np.maximum(dz.min(axis=1, keepdims=True), self.tube)  # never empty
+        pos = np.maximum(np.where(slab, lat, -np.inf).max(axis=1), 0.0)
+        neg = np.maximum(-np.where(slab, lat, np.inf).min(axis=1), 0.0)
+        f = np.asarray(fractions, dtype=np.float64)
+        e = np.where(f >= 0, f * pos, f * neg)
+        gap = np.where(slab, np.abs(lat - e[:, None]), np.inf)
+        tube = slab & (gap <= np.maximum(gap.min(axis=1, keepdims=True), self.tube))
+        idx = np.where(tube, along, np.inf).argmin(axis=1)
+        return p[idx] + self.com, e
 
-    def radius(self) -> float:
-        """Largest horizontal distance of the section from the COM (m)."""
-        return float(np.linalg.norm(self.section, axis=1).max())
+    def angular_velocity(self, lin_vel: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+        """(B, 3) angular velocity right after impulses m * lin_vel (B, 3) applied at contacts (B, 3)."""
+        r = np.asarray(contacts, dtype=np.float64) - self.com
+        return np.linalg.solve(self.inertia_per_mass, np.cross(r, lin_vel).T).T
 
 
 # --------------------------------------------------------------------------------------------- construction
-def _cross2(u: np.ndarray, v: np.ndarray) -> float:
-    return float(u[0] * v[1] - u[1] * v[0])
-
-
-def _hull_2d(points: np.ndarray) -> np.ndarray:
-    """Convex hull (CCW, no repeated first point) of 2D points, Andrew's monotone chain."""
-    pts = np.unique(np.round(points, 12), axis=0)
-    if len(pts) < 3:
+def hull_2d(points: np.ndarray) -> np.ndarray:
+    """Convex hull (K, 2), counter-clockwise, of 2-D points (scipy's qhull); the points themselves if flat."""
+    pts = np.asarray(points, dtype=np.float64)
+    try:
+        return pts[ConvexHull(pts).vertices]  # qhull lists 2-D hull vertices counter-clockwise
+    except (QhullError, ValueError):
         return pts
-    pts = pts[np.lexsort((pts[:, 1], pts[:, 0]))]
-
-    def half(seq: np.ndarray) -> list[np.ndarray]:
-        out: list[np.ndarray] = []
-        for p in seq:
-            while len(out) >= 2 and _cross2(out[-1] - out[-2], p - out[-2]) <= 0:
-                out.pop()
-            out.append(p)
-        return out
-
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
 
 
-def _section(vertices: np.ndarray, faces: np.ndarray, z: float) -> np.ndarray:
-    """Polygon (K, 2) of a convex mesh cut by the plane at height z (the projection if the cut is degenerate)."""
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
-    da, db = a[:, 2] - z, b[:, 2] - z
-    cross = (da * db) < 0
-    t = da[cross] / (da[cross] - db[cross])
-    pts = a[cross, :2] + t[:, None] * (b[cross, :2] - a[cross, :2])
-    on = np.abs(vertices[:, 2] - z) < 1e-9
-    poly = _hull_2d(np.concatenate([pts, vertices[on, :2]]))
-    if len(poly) < 3:
-        poly = _hull_2d(vertices[:, :2])
-    return poly
+def _contact_points(points: np.ndarray, seed: int = 0) -> tuple[np.ndarray, float]:
+    """At most MAX_CONTACT_POINTS of `points` and the tube half width from their median spacing."""
+    if len(points) > MAX_CONTACT_POINTS:
+        keep = np.random.default_rng(seed).choice(len(points), MAX_CONTACT_POINTS, replace=False)
+        points = points[np.sort(keep)]
+    dist, _ = cKDTree(points).query(points, k=2)
+    spacing = float(np.median(dist[:, 1]))
+    return points, float(np.clip(spacing, *TUBE_RANGE))
 
 
 def body_from_cloud(cloud: np.ndarray, density: float = DEFAULT_DENSITY, mass: float | None = None) -> PushBody:
-    """PushBody of the solid convex hull of an observed cloud (N, 3) in the table frame."""
+    """PushBody of the solid convex hull of an observed cloud (N, 3) in the table frame; contacts on the cloud."""
     pts = np.asarray(cloud, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
         raise BodyError(f"need an (N >= 4, 3) cloud to estimate the body, got shape {pts.shape}")
@@ -149,10 +152,28 @@ def body_from_cloud(cloud: np.ndarray, density: float = DEFAULT_DENSITY, mass: f
         mp = mass_properties(v, f, density=density)
     except ValueError as exc:
         raise BodyError(f"cloud does not enclose a solid: {exc}") from None
-    com = mp.com
-    section = _section(v, f, float(com[2])) - com[:2]
+    surface, tube = _contact_points(pts)
     m = mp.mass if mass is None else float(mass)
-    return PushBody(com=com, mass=m, inertia_per_mass=mp.inertia / mp.mass, section=section, source="hull")
+    return PushBody(com=mp.com, mass=m, inertia_per_mass=mp.inertia / mp.mass, points=surface - mp.com, tube=tube,
+                    source="hull")
+
+
+def box_surface(half_extents: np.ndarray, spacing: float = 0.005, max_points: int = 1500) -> np.ndarray:
+    """Points on the six faces of a box centred at the origin (grids of about `spacing`, at most ~max_points)."""
+    h = np.asarray(half_extents, dtype=np.float64)
+    area = 8.0 * (h[0] * h[1] + h[1] * h[2] + h[0] * h[2])
+    spacing = max(spacing, float(np.sqrt(area / max_points)))
+    faces = []
+    for axis in range(3):
+        u, w = [a for a in range(3) if a != axis]
+        gu = np.linspace(-h[u], h[u], max(2, int(np.ceil(2 * h[u] / spacing)) + 1))
+        gw = np.linspace(-h[w], h[w], max(2, int(np.ceil(2 * h[w] / spacing)) + 1))
+        uu, ww = np.meshgrid(gu, gw, indexing="ij")
+        for sign in (-1.0, 1.0):
+            face = np.zeros((uu.size, 3))
+            face[:, u], face[:, w], face[:, axis] = uu.ravel(), ww.ravel(), sign * h[axis]
+            faces.append(face)
+    return np.unique(np.round(np.concatenate(faces), 9), axis=0)
 
 
 def body_from_box(centroid: np.ndarray, half_extents: np.ndarray, heading: float,
@@ -164,8 +185,7 @@ def body_from_box(centroid: np.ndarray, half_extents: np.ndarray, heading: float
     a, b, c = h
     local = np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) / 3.0
     rot = geo.yaw_matrix(float(heading))
-    corners = np.array([[a, b], [-a, b], [-a, -b], [a, -b]])
-    section = _hull_2d(corners @ rot[:2, :2].T)
+    surface, tube = _contact_points(box_surface(h) @ rot.T)
     m = 8.0 * a * b * c * density if mass is None else float(mass)
     return PushBody(com=np.asarray(centroid, dtype=np.float64).reshape(3), mass=m,
-                    inertia_per_mass=rot @ local @ rot.T, section=section, source="box")
+                    inertia_per_mass=rot @ local @ rot.T, points=surface, tube=tube, source="box")

@@ -17,7 +17,8 @@ from typing import Any, Optional
 import numpy as np
 
 from .. import geometry as geo
-from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, wrap_angle, yaw_of
+from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, yaw_of
+from .session import PushSession, goal_errors
 
 #: Execution modes: apply the planned impulse at the contact point, or set the planned velocities directly.
 EXECUTE_MODES = ("impulse", "velocity")
@@ -45,6 +46,7 @@ class PushOutcome:
 @dataclass
 class ClosedLoopResult:
     success: bool  # within tolerance, upright, after at most max_pushes
+    outcome: str = ""  # planning.session.OUTCOMES: reached, refused, toppled, out_of_pushes
     pushes: list[PushOutcome] = field(default_factory=list)
     final_pose: Optional[Pose2D] = None
     position_error: float = math.inf
@@ -68,12 +70,6 @@ def observe(sim: Any, cloud_noise: float = 0.0, rng: Optional[np.random.Generato
                        cloud, tilt > math.radians(45.0))
 
 
-def errors(pose: Pose2D, goal: Goal) -> tuple[float, float]:
-    pos_err = float(np.linalg.norm(pose.xy - goal.pose.xy))
-    yaw_err = 0.0 if goal.ignores_yaw else abs(float(wrap_angle(pose.yaw - goal.pose.yaw)))
-    return pos_err, yaw_err
-
-
 def execute(sim: Any, plan: PushPlan, mode: str = "impulse", num_frames: int = 76) -> dict[str, np.ndarray]:
     """Apply a plan in the simulator and record until the object rests (sim.push.record's arrays)."""
     from ..sim.push import record  # the simulator core (pybullet); the caller already has a Simulator
@@ -89,43 +85,31 @@ def execute(sim: Any, plan: PushPlan, mode: str = "impulse", num_frames: int = 7
 
 def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3, mass: Optional[float] = None,
                  mode: str = "impulse", config: Optional[PlannerConfig] = None, cloud_noise: float = 0.0,
-                 rng: Optional[np.random.Generator] = None, num_frames: int = 76) -> ClosedLoopResult:
+                 rng: Optional[np.random.Generator] = None, num_frames: int = 76, adapt: bool = True
+                 ) -> ClosedLoopResult:
     """Push the simulator's object towards `goal`, re-planning from where it stopped, up to max_pushes pushes.
 
-    Stops early when within tolerance, when the object toppled, or when the planner refuses (the reason is
-    in the result's message). `mass` is the mass used for impulses (default: the planner's estimate).
+    The episode's rules are planning.session.PushSession's (the `push_to_goal` action uses the same): stops when
+    within tolerance, when the object toppled, when the planner refuses, or out of pushes; `result.outcome`
+    says which. `mass` is the mass used for impulses (default: the planner's estimate); `adapt` aims each push
+    by the observed / predicted slide ratio of the pushes before it.
     """
-    if max_pushes < 1:
-        raise ValueError(f"max_pushes must be >= 1, got {max_pushes}")
+    session = PushSession(goal, max_pushes, adapt=adapt)
     result = ClosedLoopResult(success=False)
     obs = observe(sim, cloud_noise, rng)
-    for k in range(max_pushes):
-        result.final_pose = obs.pose
-        result.position_error, result.yaw_error = errors(obs.pose, goal)
-        if obs.toppled:
-            result.message = f"object toppled after push {k}"
-            return result
-        within = result.position_error <= goal.position_tolerance and (
-            goal.ignores_yaw or result.yaw_error <= goal.yaw_tolerance)
-        if within:
-            result.success = True
-            result.message = f"within tolerance after {k} push(es)"
-            return result
+    while (stop := session.check(obs.pose, obs.toppled)) is None:
         try:
-            plan = planner.plan(obs.cloud, obs.pose, goal, mass=mass, config=config)
+            plan = planner.plan(obs.cloud, obs.pose, session.aim(obs.pose), mass=mass, config=config)
         except PlanningError as exc:
-            result.message = f"push {k + 1}: {exc}"
-            return result
+            stop = session.refused(str(exc))
+            break
         rec = execute(sim, plan, mode, num_frames)
-        obs = observe(sim, cloud_noise, rng)
-        pos_err, yaw_err = errors(obs.pose, goal)
-        result.pushes.append(PushOutcome(plan, obs.pose, pos_err, yaw_err, bool(rec["topple_index"] >= 0),
+        start, obs = obs.pose, observe(sim, cloud_noise, rng)
+        toppled = bool(rec["topple_index"] >= 0) or obs.toppled
+        step = session.record(start, plan.final_pose, obs.pose, toppled)
+        result.pushes.append(PushOutcome(plan, obs.pose, step.position_error, step.yaw_error, toppled,
                                          int(rec["length"])))
     result.final_pose = obs.pose
-    result.position_error, result.yaw_error = errors(obs.pose, goal)
-    result.success = (not obs.toppled and result.position_error <= goal.position_tolerance
-                      and (goal.ignores_yaw or result.yaw_error <= goal.yaw_tolerance))
-    result.message = (f"{'within' if result.success else 'outside'} tolerance after {len(result.pushes)} push(es): "
-                      f"{100 * result.position_error:.1f} cm, {math.degrees(result.yaw_error):.1f} deg"
-                      + (" (toppled)" if obs.toppled else ""))
+    result.position_error, result.yaw_error = goal_errors(obs.pose, goal)
+    result.success, result.outcome, result.message = stop.success, stop.outcome, stop.message
     return result

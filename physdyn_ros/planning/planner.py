@@ -4,15 +4,23 @@
     plan = planner.plan(cloud, Pose2D(0, 0, 0), Goal(Pose2D(0.15, 0.05, 0.3)))
     plan.lin_vel, plan.ang_vel, plan.impulse, plan.contact_point, plan.final_pose, plan.topple_probability
 
-Search: the cross-entropy method (CEM) over three numbers per candidate push, (vx, vy, f): the horizontal
-velocity of the COM and where the line of push passes the COM, as a fraction f in [-1, 1] of the object's
-extent across the push (planning.body). The angular velocity follows from them (one contact can only spin
-an object as much as its lever arm allows), so every candidate is a push a single contact can make. Each
-iteration rolls all candidates out with one `rollout_batch` call and keeps the elite fraction; the first
-iteration spreads candidates around the straight-line guess (direction to the goal, the Coulomb speed
-sqrt(2 mu g d)), later ones sample a Gaussian fitted to the elites. Optionally a few gradient steps through
-the learned model polish the best candidate (planning.refine). Iterations stop when the time budget would be
-exceeded by the next one (cost per rolled-out step is measured on the fly).
+Search: the cross-entropy method (CEM) over four numbers per candidate push, (vx, vy, f, h): the horizontal
+velocity of the COM, where the line of push passes the COM (a fraction f in [-1, 1] of the object's extent
+across the push at that height) and the contact height h (a fraction of the heights the pusher can reach on
+this object, config min/max_contact_height). The contact point is the first observed surface point on that
+line (planning.body), and the angular velocity follows from the impulse there: every candidate is a push a
+single contact can make; a low contact tips the object back against its topple. Each iteration rolls all
+candidates out with one `rollout_batch` call and keeps the elite fraction; the first iteration spreads
+candidates around the straight-line guess (direction to the goal, the Coulomb speed sqrt(2 mu g d)), gentle
+and low pushes included, later ones sample a Gaussian fitted to the elites. Iterations stop when the time
+budget would be exceeded by the next one (cost per rolled-out step is measured on the fly).
+
+Robustness: the best `robust_candidates` distinct elites are rolled out again under `robust_samples` small
+perturbations each (speed, direction, offset, height: what a robot's execution and the perception get wrong).
+The push whose perturbed outcomes cost least on average, and whose perturbed topple probabilities all stay
+under the limit, wins; its spread (RMS distance of the perturbed rest positions from the nominal one) and
+worst topple probability are reported. Optionally a few gradient steps through the learned model polish the
+push's velocity at the chosen contact (planning.refine).
 
 Cost of a candidate (lower is better), from its predicted final state:
     (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)
@@ -20,9 +28,11 @@ Cost of a candidate (lower is better), from its predicted final state:
       at the horizon has not reached its final pose)
     + 2 * topple probability + 1000 if the topple probability exceeds the limit or the COM leaves the table.
 
+When no safe push reaches the goal, the safe push that gets closest wins (the closed loop pushes again).
+
 Refusals (PlanningError, a ValueError, with the reason): non-finite or malformed poses and tolerances,
-start or goal off the table, no shape, a goal farther than a push of at most max_speed can slide
-(v^2 / (2 mu_min g)), and goals for which every push considered topples.
+start or goal off the table, no shape, no contact height within reach, a goal farther than a push of at most
+max_speed can slide (v^2 / (2 mu_min g)), and objects for which every push considered topples.
 """
 from __future__ import annotations
 
@@ -173,6 +183,11 @@ class PlannerConfig:
     friction: float = 0.5  # nominal Coulomb friction: the initial speed guess sqrt(2 mu g d)
     min_friction: float = 0.35  # lowest friction expected: the reach bound v^2 / (2 mu g)
     max_offset_fraction: float = 0.85  # how far off the COM the line of push may pass, share of the lever limit
+    min_contact_height: float = 0.005  # m above the table: lowest point the pusher can touch
+    max_contact_height: float = 0.5  # m above the table: highest point the pusher can touch
+    robust_candidates: int = 6  # distinct elites re-checked under perturbations (0 = no robustness check)
+    robust_samples: int = 6  # perturbed roll-outs per re-checked elite
+    robust_share: float = 0.25  # share of the time budget kept for the robustness check
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
     density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
     refine_steps: int = 0  # gradient steps through the learned model after CEM (0 = off)
@@ -193,11 +208,18 @@ class PlannerConfig:
             raise PlanningError(f"max_offset_fraction must be in (0, 1], got {self.max_offset_fraction}")
         if not 0 < _finite(self.elite_fraction, "elite_fraction") <= 1:
             raise PlanningError(f"elite_fraction must be in (0, 1], got {self.elite_fraction}")
-        for name in ("samples", "max_iterations", "horizon", "refine_steps"):
+        lo, hi = _finite(self.min_contact_height, "min_contact_height"), _finite(self.max_contact_height,
+                                                                                 "max_contact_height")
+        if not 0 <= lo < hi:
+            raise PlanningError(f"contact heights must satisfy 0 <= min_contact_height < max_contact_height, got "
+                                f"{lo:g}, {hi:g}")
+        if not 0 <= _finite(self.robust_share, "robust_share") < 1:
+            raise PlanningError(f"robust_share must be in [0, 1), got {self.robust_share}")
+        optional = ("horizon", "refine_steps", "robust_candidates", "robust_samples")
+        for name in ("samples", "max_iterations") + optional:
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in (
-                    "horizon", "refine_steps") else 1):
-                kind = 'non-negative' if name in ('horizon', 'refine_steps') else 'positive'
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in optional else 1):
+                kind = 'non-negative' if name in optional else 'positive'
                 raise PlanningError(f"{name} must be a {kind} integer, got {v!r}")
         if self.samples < 8:
             raise PlanningError(f"samples must be >= 8, got {self.samples}")
@@ -220,9 +242,10 @@ class PushPlan:
     lin_vel: np.ndarray  # (3,) m/s, COM velocity right after the push (world frame)
     ang_vel: np.ndarray  # (3,) rad/s, angular velocity right after the push (world frame)
     impulse: np.ndarray  # (3,) N s, = mass * lin_vel, horizontal
-    contact_point: np.ndarray  # (3,) m, table frame, where to apply the impulse (at COM height)
+    contact_point: np.ndarray  # (3,) m, table frame: a point of the observed surface where the impulse is applied
     mass: float  # kg, the mass used for the impulse (given, or the hull / box estimate)
     offset: float  # m, signed distance of the line of push from the COM (+: left of the push direction)
+    contact_height: float  # m above the table (= contact_point z)
     start: Pose2D
     goal: Goal
     final_pose: Pose2D  # predicted rest pose
@@ -230,6 +253,8 @@ class PushPlan:
     position_error: float  # m, predicted final distance to the goal
     yaw_error: float  # rad, predicted |final yaw - goal yaw| (0 when the goal ignores yaw)
     topple_probability: float  # predicted probability of toppling during the push
+    robust_topple_probability: float  # highest topple probability among the perturbed pushes (robustness check)
+    spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
     within_tolerance: bool  # the predicted final pose is within both tolerances
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
     planning_time: float  # s, wall time of the plan() call
@@ -350,39 +375,44 @@ class PushPlanner:
         zeros = np.zeros((horizon + 1, 3))
         traj = Trajectory(float(self.model.dt), pos, q, zeros, zeros.copy(), np.zeros(horizon + 1))
         return PushPlan(lin_vel=np.zeros(3), ang_vel=np.zeros(3), impulse=np.zeros(3), contact_point=body.com.copy(),
-                        mass=body.mass, offset=0.0, start=start, goal=goal, final_pose=start, final_position=pos[-1],
+                        mass=body.mass, offset=0.0, contact_height=float(body.com[2]), start=start, goal=goal,
+                        final_pose=start, final_position=pos[-1],
                         position_error=float(np.linalg.norm(goal.pose.xy - start.xy)),
                         yaw_error=0.0 if goal.ignores_yaw else abs(wrap_angle(goal.pose.yaw - start.yaw)),
-                        topple_probability=0.0, within_tolerance=True, trajectory=traj,
-                        planning_time=time.perf_counter() - t0, iterations=0, rollouts=0, horizon=horizon,
-                        body_source=body.source, model_id=str(self.model.model_id),
+                        topple_probability=0.0, robust_topple_probability=0.0, spread=0.0, within_tolerance=True,
+                        trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
+                        horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
                         message="already within tolerance: no push needed")
 
     def _result(self, search: "_Search", best: "_Candidate", t0: float) -> PushPlan:
         cfg, goal, start = search.cfg, search.goal, search.start
-        if best.topple > cfg.max_topple_probability:
-            raise PlanningError(f"every push considered is predicted to topple the object (lowest topple "
-                                f"probability {best.topple:.2f} > max_topple_probability "
-                                f"{cfg.max_topple_probability:g}); try a lower max_speed or a nearer goal")
         if best.off_table:
             raise PlanningError("every push considered leaves the table")
+        worst = max(best.topple, best.robust_topple)
+        if worst > cfg.max_topple_probability:
+            raise PlanningError(f"no safe push: every push considered is predicted to topple the object (lowest "
+                                f"topple probability {worst:.2f} > max_topple_probability "
+                                f"{cfg.max_topple_probability:g}, contact heights {search.h_lo:.3f}-"
+                                f"{search.h_hi:.3f} m); try a lower max_speed or a nearer goal")
         traj = best.trajectory
         final = traj.positions[-1]
         final_yaw = float(wrap_angle(start.yaw + float(yaw_of(traj.orientations[-1]))))
         within = best.pos_err <= goal.position_tolerance and (goal.ignores_yaw or best.yaw_err <= goal.yaw_tolerance)
         body = search.body
-        contact = body.contact_points(best.direction[None], np.array([best.offset]))[0]
-        contact[:2] += start.xy - body.com[:2]  # geometry is relative to the observed COM; the pose is the truth
         lin = np.array([best.speed * best.direction[0], best.speed * best.direction[1], 0.0])
         yaw_text = "" if goal.ignores_yaw else f", yaw {math.degrees(best.yaw_err):.1f} deg"
+        robust = f", spread {100 * best.spread:.1f} cm" if search.checked else ""
         msg = (f"{'within' if within else 'OUTSIDE'} tolerance: predicted to stop {100 * best.pos_err:.1f} cm"
-               f"{yaw_text} from the goal (topple probability {best.topple:.2f}); {search.iterations} CEM "
-               f"iterations, {search.rollouts} roll-outs in {1e3 * (time.perf_counter() - t0):.0f} ms")
-        return PushPlan(lin_vel=lin, ang_vel=best.ang_vel.copy(), impulse=body.mass * lin, contact_point=contact,
-                        mass=body.mass, offset=float(best.offset), start=start, goal=goal,
+               f"{yaw_text} from the goal (topple probability {worst:.2f}{robust}); push at "
+               f"{100 * best.contact[2]:.1f} cm height; {search.iterations} CEM iterations, {search.rollouts} "
+               f"roll-outs in {1e3 * (time.perf_counter() - t0):.0f} ms")
+        return PushPlan(lin_vel=lin, ang_vel=best.ang_vel.copy(), impulse=body.mass * lin,
+                        contact_point=best.contact.copy(), mass=body.mass, offset=float(best.offset),
+                        contact_height=float(best.contact[2]), start=start, goal=goal,
                         final_pose=Pose2D(float(final[0]), float(final[1]), final_yaw), final_position=final.copy(),
                         position_error=float(best.pos_err), yaw_error=0.0 if goal.ignores_yaw else float(best.yaw_err),
-                        topple_probability=float(best.topple), within_tolerance=bool(within), trajectory=traj,
+                        topple_probability=float(best.topple), robust_topple_probability=float(best.robust_topple),
+                        spread=float(best.spread), within_tolerance=bool(within), trajectory=traj,
                         planning_time=time.perf_counter() - t0, iterations=search.iterations,
                         rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,
                         model_id=str(self.model.model_id), message=msg)
@@ -395,27 +425,49 @@ class _Candidate:
     direction: np.ndarray  # (2,)
     speed: float
     fraction: float
+    height_fraction: float
     offset: float
+    contact: np.ndarray  # (3,) table frame
     ang_vel: np.ndarray
     pos_err: float
     yaw_err: float
     topple: float
     off_table: bool
     trajectory: Trajectory
+    robust_cost: float = math.inf  # mean cost over the perturbed pushes (robustness check)
+    robust_topple: float = 0.0  # highest topple probability of the perturbed pushes
+    spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.array([self.speed * self.direction[0], self.speed * self.direction[1], self.fraction,
+                         self.height_fraction])
+
+
+#: Perturbations of the robustness check (standard deviations): relative speed, direction (rad), offset
+#: fraction, height (m).
+PERTURB_SPEED, PERTURB_ANGLE, PERTURB_FRACTION, PERTURB_HEIGHT = 0.08, math.radians(4.0), 0.08, 0.01
 
 
 class _Search:
-    """One CEM run (state shared by the iterations and the optional gradient refinement)."""
+    """One CEM run (state shared by the iterations, the robustness check and the optional refinement)."""
 
     def __init__(self, planner: PushPlanner, code: Any, body: PushBody, start: Pose2D, goal: Goal,
                  cfg: PlannerConfig, horizon: int, t0: float) -> None:
         self.planner, self.model, self.code, self.body = planner, planner.model, code, body
         self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
         self.deadline = t0 + cfg.time_budget
+        robust = cfg.robust_candidates > 0 and cfg.robust_samples > 0
+        self.cem_deadline = t0 + cfg.time_budget * ((1.0 - cfg.robust_share) if robust else 1.0)
         self.rng = np.random.default_rng(cfg.seed)
         self.iterations = 0
         self.rollouts = 0
+        self.checked = False
         self.z0 = float(np.asarray(code.centroid)[2])
+        try:
+            self.h_lo, self.h_hi = body.height_range(cfg.min_contact_height, cfg.max_contact_height)
+        except BodyError as exc:
+            raise PlanningError(str(exc)) from None
         delta = goal.pose.xy - start.xy
         self.dist = float(np.linalg.norm(delta))
         self.heading = math.atan2(delta[1], delta[0]) if self.dist > 1e-9 else start.yaw
@@ -425,29 +477,31 @@ class _Search:
 
     # -- candidates --------------------------------------------------------------------------------------
     def _first(self, n: int) -> np.ndarray:
-        """(n, 3) params (vx, vy, f): a spread around the straight-line push."""
+        """(n, 4) params (vx, vy, f, h): a spread around the straight-line push, gentle and low pushes included
+        (they are the ones that do not topple tall objects)."""
         ang = self.heading + self.rng.uniform(-0.7, 0.7, n)
-        speed = self.speed0 * np.exp(self.rng.uniform(np.log(0.6), np.log(2.0), n))
+        speed = self.speed0 * np.exp(self.rng.uniform(np.log(0.3), np.log(2.0), n))
         f = self.rng.uniform(-self.cfg.max_offset_fraction, self.cfg.max_offset_fraction, n)
-        params = np.stack([speed * np.cos(ang), speed * np.sin(ang), f], axis=1)
-        params[0] = [self.speed0 * math.cos(self.heading), self.speed0 * math.sin(self.heading), 0.0]
+        h = np.where(np.arange(n) % 2 == 0, self.rng.uniform(0.0, 0.3, n), self.rng.uniform(0.0, 1.0, n))
+        params = np.stack([speed * np.cos(ang), speed * np.sin(ang), f, h], axis=1)
+        params[0] = [self.speed0 * math.cos(self.heading), self.speed0 * math.sin(self.heading), 0.0, 0.0]
         return params
 
-    def _project(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Clip to the feasible set: speed within limits, offset within the lever fraction."""
+    def _project(self, params: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Clip to the feasible set: speed within limits, offset within the lever fraction, height reachable."""
         v = params[:, :2]
         s = np.linalg.norm(v, axis=1)
         d = np.where(s[:, None] > 1e-9, v / np.maximum(s, 1e-12)[:, None],
                      np.array([math.cos(self.heading), math.sin(self.heading)]))
         s = np.clip(s, self.cfg.min_speed, self.cfg.max_speed)
         f = np.clip(params[:, 2], -self.cfg.max_offset_fraction, self.cfg.max_offset_fraction)
-        return d, s, f
+        return d, s, f, np.clip(params[:, 3], 0.0, 1.0)
 
     def evaluate(self, params: np.ndarray) -> list[_Candidate]:
-        d, s, f = self._project(params)
-        e = self.body.offsets(d, f)
-        w = self.body.angular_velocity(s, e)
+        d, s, f, hf = self._project(params)
+        contacts, e = self.body.contacts(d, f, self.h_lo + hf * (self.h_hi - self.h_lo))
         v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
+        w = self.body.angular_velocity(v, contacts)
         p0 = np.array([self.start.x, self.start.y, self.z0])
         t = time.perf_counter()
         try:
@@ -460,8 +514,9 @@ class _Search:
         self.planner._sec_per_step = per_step if ema is None else 0.5 * ema + 0.5 * per_step
         self.rollouts += len(s)
         costs, pos_err, yaw_err, topple, off = self.costs(batch)
-        return [_Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(e[i]), w[i], float(pos_err[i]),
-                           float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i]) for i in range(len(s))]
+        return [_Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(hf[i]), float(e[i]), contacts[i],
+                           w[i], float(pos_err[i]), float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i])
+                for i in range(len(s))]
 
     def costs(self, batch: TrajectoryBatch) -> tuple[np.ndarray, ...]:
         g, cfg = self.goal, self.cfg
@@ -481,34 +536,34 @@ class _Search:
         cost = np.where(np.isfinite(cost), cost, np.inf)  # a diverging model must never win
         return cost, pos_err, yaw_err, topple, off
 
-    def _batch_size(self) -> int:
-        """Candidates that fit in the remaining budget (a 32-candidate probe while the cost is unknown)."""
+    def _batch_size(self, deadline: float) -> int:
+        """Candidates that fit before `deadline` (a 32-candidate probe while the cost is unknown)."""
         n = self.cfg.samples
         per = self.planner._sec_per_step
         if per is None:
             return min(n, 32)
-        left = self.deadline - time.perf_counter()
+        left = deadline - time.perf_counter()
         fit = int(0.85 * left / max(per * self.horizon, 1e-9))
         return min(n, fit)
 
     # -- CEM -----------------------------------------------------------------------------------------------
     def run(self) -> _Candidate:
         cfg = self.cfg
-        lo = np.array([-cfg.max_speed, -cfg.max_speed, -cfg.max_offset_fraction])
-        hi = -lo
-        std_floor = np.array([0.01, 0.01, 0.02])
+        lo = np.array([-cfg.max_speed, -cfg.max_speed, -cfg.max_offset_fraction, 0.0])
+        hi = np.array([cfg.max_speed, cfg.max_speed, cfg.max_offset_fraction, 1.0])
+        std_floor = np.array([0.01, 0.01, 0.02, 0.02])
         best: Optional[_Candidate] = None
         elites: list[_Candidate] = []
         mean = std = None
         while self.iterations < cfg.max_iterations:
-            n = self._batch_size()
+            n = self._batch_size(self.cem_deadline)
             if self.iterations > 0 and n < 8:
                 break  # the budget is spent
             n = max(n, 8)
             if mean is None:
                 params = self._first(n)
             else:
-                params = np.clip(mean + std * self.rng.standard_normal((n, 3)), lo, hi)
+                params = np.clip(mean + std * self.rng.standard_normal((n, 4)), lo, hi)
             cands = self.evaluate(params)
             self.iterations += 1
             # elitism: last iteration's elites compete again (roll-outs are deterministic: no re-evaluation)
@@ -517,15 +572,51 @@ class _Search:
             elites = pool[:k]
             if best is None or elites[0].cost < best.cost:
                 best = elites[0]
-            ep = np.array([[c.speed * c.direction[0], c.speed * c.direction[1], c.fraction] for c in elites])
+            ep = np.array([c.params for c in elites])
             new_mean, new_std = ep.mean(axis=0), ep.std(axis=0) + std_floor
             mean = new_mean if mean is None else 0.9 * new_mean + 0.1 * mean
             std = new_std if std is None else 0.8 * new_std + 0.2 * std
-            if best.cost < 0.05:  # far inside the tolerances: more search buys nothing
+            if best.cost < 0.05 and cfg.robust_candidates == 0:  # far inside the tolerances: more buys nothing
                 break
         assert best is not None
+        best = self.robust(elites, best)
         if cfg.refine_steps > 0 and time.perf_counter() < self.deadline:
             from .refine import refine_candidate
 
             best = refine_candidate(self, best)
         return best
+
+    def robust(self, elites: list[_Candidate], best: _Candidate) -> _Candidate:
+        """Re-check the best distinct elites under perturbed execution; the most robust safe one wins."""
+        cfg = self.cfg
+        k, m = cfg.robust_candidates, cfg.robust_samples
+        if k == 0 or m == 0:
+            return best
+        chosen: list[_Candidate] = []
+        for c in elites:  # distinct: a push at least a little different from those already chosen
+            if c.cost >= INFEASIBLE:
+                break
+            if all(np.abs(c.params - o.params).max() > 1e-3 for o in chosen):
+                chosen.append(c)
+            if len(chosen) == k:
+                break
+        if not chosen:
+            return best
+        base = np.array([c.params for c in chosen])  # (K, 4)
+        speed = np.hypot(base[:, 0], base[:, 1])[:, None] * np.exp(PERTURB_SPEED * self.rng.standard_normal((len(
+            chosen), m)))
+        ang = np.arctan2(base[:, 1], base[:, 0])[:, None] + PERTURB_ANGLE * self.rng.standard_normal((len(chosen), m))
+        frac = base[:, 2:3] + PERTURB_FRACTION * self.rng.standard_normal((len(chosen), m))
+        span = max(self.h_hi - self.h_lo, 1e-6)
+        height = base[:, 3:4] + PERTURB_HEIGHT / span * self.rng.standard_normal((len(chosen), m))
+        params = np.stack([speed * np.cos(ang), speed * np.sin(ang), frac, height], axis=-1).reshape(-1, 4)
+        perturbed = self.evaluate(params)
+        self.checked = True
+        for i, c in enumerate(chosen):
+            group = perturbed[i * m:(i + 1) * m]
+            c.robust_cost = float(np.mean([min(p.cost, INFEASIBLE) for p in group] + [c.cost]))
+            c.robust_topple = max(p.topple for p in group)
+            finals = np.array([p.trajectory.positions[-1, :2] for p in group])
+            c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
+        safe = [c for c in chosen if c.robust_topple <= cfg.max_topple_probability]
+        return min(safe or chosen, key=lambda c: c.robust_cost)

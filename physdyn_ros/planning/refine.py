@@ -3,9 +3,10 @@
 Only for a physdyn_ros.predictor.Predictor (other DynamicsModels have no gradients: the refinement is skipped).
 The final pose is rebuilt differentiably from the model's increments in its canonical frame C:
     final xy = start xy + R(heading) sum_t d_pos_t        final yaw = start yaw + sum_t d_rot_t . z
-(the yaw sum is exact for rotations about z, i.e. for the upright pushes the planner accepts). The push
-parameters (vx, vy, f) are optimised with Adam on the planner's cost (without the hard limits); the result is
-re-scored with the ordinary batched roll-out and kept only if it is better, so refinement never hurts.
+(the yaw sum is exact for rotations about z, i.e. for the upright pushes the planner accepts). The push's
+velocity (vx, vy) is optimised with Adam on the planner's cost (without the hard limits), at the contact point
+CEM chose (w = (I/m)^-1 (r x v) with r fixed); the result is re-scored with the ordinary batched roll-out
+(which finds the contact again on the surface) and kept only if it is better, so refinement never hurts.
 """
 from __future__ import annotations
 
@@ -43,12 +44,12 @@ def refine_candidate(search: "_Search", best: "_Candidate") -> "_Candidate":
     feature = torch.as_tensor(np.asarray(code.feature, dtype=np.float32), **f32)[None]
     h = float(code.heading)
     rot_c2w = torch.tensor([[math.cos(h), -math.sin(h)], [math.sin(h), math.cos(h)]], **f32)
-    col = torch.as_tensor(np.linalg.solve(body.inertia_per_mass, [0.0, 0.0, 1.0]), **f32)
-    section = torch.as_tensor(body.section, **f32)
+    inv_inertia = torch.as_tensor(np.linalg.inv(body.inertia_per_mass), **f32)
+    lever = torch.as_tensor(best.contact - body.com, **f32)
     goal_xy = torch.as_tensor(goal.pose.xy, **f32)
     start_xy = torch.as_tensor(start.xy, **f32)
-    scale = torch.tensor([cfg.max_speed, cfg.max_speed, 1.0], **f32)
-    x = torch.tensor([best.speed * best.direction[0], best.speed * best.direction[1], best.fraction], **f32)
+    scale = torch.tensor([cfg.max_speed, cfg.max_speed], **f32)
+    x = torch.tensor([best.speed * best.direction[0], best.speed * best.direction[1]], **f32)
     x = (x / scale).clone().requires_grad_(True)
     opt = torch.optim.Adam([x], lr=cfg.refine_lr)
     t_step: Optional[float] = None
@@ -63,12 +64,8 @@ def refine_candidate(search: "_Search", best: "_Candidate") -> "_Candidate":
             s = torch.linalg.norm(v).clamp_min(1e-6)
             d = v / s
             s = s.clamp(cfg.min_speed, cfg.max_speed)
-            frac = p[2].clamp(-cfg.max_offset_fraction, cfg.max_offset_fraction)
-            n = torch.stack([-d[1], d[0]])
-            proj = section @ n
-            e = torch.where(frac >= 0, frac * proj.max().clamp_min(0), frac * (-proj.min()).clamp_min(0))
-            w = -(s * e) * col
             vel = torch.cat([s * d, v.new_zeros(1)])
+            w = inv_inertia @ torch.linalg.cross(lever, vel)
             # world -> C: rotate by -heading about z
             vel_c = torch.cat([rot_c2w.T @ vel[:2], vel[2:]])
             w_c = torch.cat([rot_c2w.T @ w[:2], w[2:]])
@@ -85,7 +82,8 @@ def refine_candidate(search: "_Search", best: "_Candidate") -> "_Candidate":
             # grad w.r.t. the push only: the model's weights get no .grad (the Predictor is shared)
             (x.grad,) = torch.autograd.grad(cost, [x])
             opt.step()
-        params.append((x.detach() * scale).cpu().numpy().astype(np.float64))
+        vxy = (x.detach() * scale).cpu().numpy().astype(np.float64)
+        params.append(np.array([vxy[0], vxy[1], best.fraction, best.height_fraction]))
         t_step = time.perf_counter() - t
     if not params:
         return best

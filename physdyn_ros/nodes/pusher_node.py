@@ -1,0 +1,348 @@
+"""Pusher: the `push_to_goal` action, closed-loop pushing on top of the predictor's plan_push.
+
+For each goal (physdyn_ros/action/PushToGoal):
+1. plan: the predictor's `plan_push` (start = the object's latest object_state, goal = the session's aim: the
+   goal, corrected by the observed / predicted slide ratio of the pushes so far; planning.session);
+2. push: the sim node's `push_object` executes the impulse at the contact point, or, with execute_externally,
+   a robot stack reads the planned push from the feedback (stage "pushing") and executes it itself;
+3. observe: the object's states on `object_state` until it rests (conventions.REST_*); after `steps_in`
+   moving states the predictor re-predicts the rest pose from them (`predict_trajectory`'s observed states),
+   sent as feedback;
+4. stop (planning.session.PushSession, the same rules as the pybullet bench): reached, toppled, refused,
+   out_of_pushes; also cancelled (checked before every push), invalid (a bad goal) and timeout (the object did
+   not start moving or did not come to rest in time).
+
+A thin adapter: the episode's rules live in planning.session, the planning in the predictor (which holds the
+model and the shape features), the physics in the sim node or the real world. No model is loaded here.
+Goals run one at a time (a second goal is rejected while one runs: one pusher, one object moving).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections import deque
+from typing import Optional
+
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+
+from ..action import PushToGoal
+from ..conventions import REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL, TABLE_FRAME
+from ..msg import ObjectState, ShapeFeature
+from ..planning.planner import Goal, PlanningError, Pose2D
+from ..planning.session import PushSession, Stop, goal_errors
+from ..ros.convert import pose, pose_to_numpy, quat_yaw, time_to_ns, twist_to_numpy, yaw_quaternion
+from ..ros.diagnostics import OK, WARN, Diagnostics, Report
+from ..ros.params import declare
+from ..ros.run import run_node
+from ..srv import PlanPush, PredictTrajectory, PushObject
+from .predictor_node import FEATURE_QOS, STATE_QOS  # the subscriber side of the same topics
+
+
+
+class EpisodeError(Exception):
+    """Ends a goal early with an outcome (invalid, timeout, refused) and the reason."""
+
+    def __init__(self, outcome: str, message: str) -> None:
+        super().__init__(message)
+        self.outcome = outcome
+
+
+def pose2d(msg) -> Pose2D:
+    p, q = pose_to_numpy(msg, zero_is_identity=True)
+    return Pose2D(float(p[0]), float(p[1]), float(quat_yaw(q)))
+
+
+def moving(state: ObjectState) -> bool:
+    lin, ang = twist_to_numpy(state.twist)
+    return bool(np.linalg.norm(lin) >= REST_LIN_VEL or np.linalg.norm(ang) >= REST_ANG_VEL)
+
+
+class PusherNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("pusher", **kwargs)
+        self.table_frame = declare(self, "table_frame", TABLE_FRAME, "fixed frame of goals and object states",
+                                   read_only=True)
+        declare(self, "position_tolerance", 0.02, "m, default position tolerance of a goal", low=1e-4)
+        declare(self, "yaw_tolerance", 0.1745, "rad, default yaw tolerance (>= pi: any yaw)", low=1e-4)
+        declare(self, "max_pushes", 3, "default pushes per goal", low=1, high=50)
+        declare(self, "adapt", True, "aim each push by the observed / predicted slide ratio of the pushes before")
+        declare(self, "steps_in", 3, "observed states fed to the model to re-predict the rest pose (0 = off)",
+                low=0, high=30)
+        declare(self, "motion_timeout", 5.0, "s for an executed push to start moving the object", low=0.1)
+        declare(self, "external_motion_timeout", 60.0, "s for a robot to execute a push (execute_externally)",
+                low=0.1)
+        declare(self, "rest_timeout", 15.0, "s for the pushed object to come to rest", low=0.1)
+        declare(self, "feature_timeout", 5.0, "s for a shape feature of the object at rest after a push", low=0.1)
+        declare(self, "service_timeout", 10.0, "s to wait for the predictor's and the sim's services", low=0.1)
+        declare(self, "plan_service", "plan_push", "the predictor's PlanPush service", read_only=True)
+        declare(self, "predict_service", "predict_trajectory", "the predictor's PredictTrajectory service",
+                read_only=True)
+        declare(self, "push_service", "push", "the sim node's PushObject service", read_only=True)
+
+        self._states: dict[str, deque[ObjectState]] = {}  # the newest states per object
+        self._received: dict[str, int] = {}  # states received per object in all (the deque drops the oldest)
+        self._feature_ns: dict[str, int] = {}  # stamp of the newest shape feature per object
+        self._cond = threading.Condition()
+        self._busy = threading.Lock()
+        self._session: Optional[PushSession] = None  # the running goal's, for a result after an early stop
+        self._pose: Optional[Pose2D] = None
+        self.counts = {k: 0 for k in ("goals", "reached", "refused", "toppled", "out_of_pushes", "cancelled",
+                                      "invalid", "timeout", "pushes")}
+        self.last_result = ""
+        clients = ReentrantCallbackGroup()
+        self.plan_client = self.create_client(PlanPush, self.get_parameter("plan_service").value,
+                                              callback_group=clients)
+        self.predict_client = self.create_client(PredictTrajectory, self.get_parameter("predict_service").value,
+                                                 callback_group=clients)
+        self.push_client = self.create_client(PushObject, self.get_parameter("push_service").value,
+                                              callback_group=clients)
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=inputs)
+        self.create_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
+                                 callback_group=inputs)
+        self.server = ActionServer(self, PushToGoal, "push_to_goal", execute_callback=self._execute,
+                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                   callback_group=ReentrantCallbackGroup())
+        self.diagnostics = Diagnostics(self, "push_to_goal", self.report)
+        self.get_logger().info("ready: action push_to_goal")
+
+    # ------------------------------------------------------------------------------------------ inputs
+    def _on_state(self, msg: ObjectState) -> None:
+        with self._cond:
+            self._states.setdefault(msg.object_id, deque(maxlen=600)).append(msg)
+            self._received[msg.object_id] = self._received.get(msg.object_id, 0) + 1
+            self._cond.notify_all()
+
+    def _on_feature(self, msg: ShapeFeature) -> None:
+        with self._cond:
+            self._feature_ns[msg.object_id] = max(self._feature_ns.get(msg.object_id, 0),
+                                                  time_to_ns(msg.header.stamp))
+            self._cond.notify_all()
+
+    def _wait_feature(self, object_id: str, after_ns: int, push_index: int) -> None:
+        """Wait for a shape feature of the object seen at or after after_ns (the object at rest): the next plan
+        pushes on the surface where it lies now."""
+        timeout = float(self._param("feature_timeout"))
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._feature_ns.get(object_id, 0) >= after_ns, timeout):
+                raise EpisodeError("timeout", f"push {push_index}: no shape feature of '{object_id}' at rest "
+                                              f"within {timeout:g} s (is the perception node running?)")
+
+    def report(self) -> Report:
+        level = WARN if self.last_result.startswith(("invalid", "timeout")) else OK
+        return level, self.last_result or "no goal yet", dict(self.counts)
+
+    def _on_goal(self, _goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning("push_to_goal: rejected, a goal is already running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _param(self, name: str):
+        return self.get_parameter(name).value
+
+    def _call(self, client, request, what: str):
+        timeout = float(self._param("service_timeout"))
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise EpisodeError("invalid", f"{what} service '{client.srv_name}' is not available")
+        future = client.call_async(request)
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout + 30.0):
+            raise EpisodeError("timeout", f"{what} service '{client.srv_name}' did not answer")
+        return future.result()
+
+    # ------------------------------------------------------------------------------------------- goal
+    def _execute(self, handle) -> PushToGoal.Result:
+        with self._busy:
+            self._session, self._pose = None, None
+            self.counts["goals"] += 1
+            result = PushToGoal.Result()
+            try:
+                stop, session, pose = self._episode(handle)
+            except EpisodeError as exc:
+                stop, session, pose = Stop(exc.outcome, str(exc)), self._session, self._pose
+            except Exception as exc:  # noqa: BLE001 - a goal ends with the reason, the node keeps serving
+                self.get_logger().error(f"push_to_goal: internal error: {type(exc).__name__}: {exc}")
+                stop, session, pose = Stop("invalid", f"internal error: {type(exc).__name__}: {exc}"), None, None
+            result.success, result.outcome, result.message = stop.success, stop.outcome, stop.message
+            result.pushes = len(session.steps) if session else 0
+            if pose is not None and session is not None:
+                result.final_pose = pose_msg(pose, self._last_z(handle.request.object_id))
+                result.position_error, result.yaw_error = goal_errors(pose, session.goal)
+            self.counts[stop.outcome] = self.counts.get(stop.outcome, 0) + 1
+            self.last_result = f"{stop.outcome}: {stop.message}"
+            self.get_logger().info(f"push_to_goal '{handle.request.object_id}': {self.last_result}")
+            if stop.outcome == "cancelled":
+                handle.canceled()
+            elif stop.success:
+                handle.succeed()
+            else:
+                handle.abort()
+            return result
+
+    def _goal(self, req) -> Goal:
+        if req.header.frame_id not in ("", self.table_frame):
+            raise EpisodeError("invalid", f"goal frame '{req.header.frame_id}' is not the table frame "
+                                          f"'{self.table_frame}'")
+        for name in ("position_tolerance", "yaw_tolerance", "mass", "max_speed"):
+            v = float(getattr(req, name))
+            if not math.isfinite(v) or v < 0:
+                raise EpisodeError("invalid", f"{name} must be finite and >= 0 (0 = the default), got {v}")
+        try:
+            return Goal(pose2d(req.goal_pose), req.position_tolerance or float(self._param("position_tolerance")),
+                        req.yaw_tolerance or float(self._param("yaw_tolerance")))
+        except (ValueError, PlanningError) as exc:
+            raise EpisodeError("invalid", f"goal_pose: {exc}") from None
+
+    def _latest(self, object_id: str) -> Optional[ObjectState]:
+        with self._cond:
+            states = self._states.get(object_id)
+            return states[-1] if states else None
+
+    def _last_z(self, object_id: str) -> float:
+        s = self._latest(object_id)
+        return float(s.pose.position.z) if s is not None else 0.0
+
+    def _episode(self, handle) -> tuple[Stop, PushSession, Optional[Pose2D]]:
+        req = handle.request
+        goal = self._goal(req)
+        max_pushes = int(req.max_pushes or self._param("max_pushes"))
+        session = PushSession(goal, max_pushes, adapt=bool(self._param("adapt")))
+        self._session, self._pose = session, None
+        if not req.object_id:
+            raise EpisodeError("invalid", "object_id is empty: name the object to push (its object_state id)")
+        state = self._latest(req.object_id)
+        if state is None:
+            raise EpisodeError("invalid", f"no object_state of '{req.object_id}' received yet")
+        while True:
+            pose = self._pose = pose2d(state.pose)
+            stop = session.check(pose, bool(state.toppled))
+            if stop is not None:
+                return stop, session, pose
+            if handle.is_cancel_requested:
+                return Stop("cancelled", f"cancelled before push {len(session.steps) + 1}"), session, pose
+            k = len(session.steps) + 1
+            feedback = PushToGoal.Feedback(push_index=k, stage="planning")
+            feedback.position_error, feedback.yaw_error = goal_errors(pose, goal)
+            handle.publish_feedback(feedback)
+            plan = self._plan(req, session.aim(pose))
+            if handle.is_cancel_requested:
+                return Stop("cancelled", f"cancelled before push {k}"), session, pose
+            if not plan.success:
+                return session.refused(plan.message), session, pose
+            feedback.stage, feedback.push_twist, feedback.impulse = "pushing", plan.push_twist, plan.impulse
+            feedback.contact_point, feedback.topple_probability = plan.contact_point, plan.topple_probability
+            feedback.predicted_rest_pose = plan.predicted_final_pose
+            handle.publish_feedback(feedback)
+            mark = self._mark(req.object_id)
+            if not req.execute_externally:
+                self._push(req.object_id, plan)
+            state = self._observe(req, plan, state, mark, feedback, handle)
+            rest = pose2d(state.pose)
+            session.record(pose, pose2d(plan.predicted_final_pose), rest, bool(state.toppled))
+            self.counts["pushes"] += 1
+            if session.check(rest, bool(state.toppled)) is None:  # another push follows: see where it lies
+                self._wait_feature(req.object_id, time_to_ns(state.header.stamp), k)
+            feedback.stage, feedback.observed_rest_pose = "rested", state.pose
+            feedback.position_error, feedback.yaw_error = goal_errors(rest, goal)
+            handle.publish_feedback(feedback)
+
+    def _plan(self, req, aim: Goal) -> PlanPush.Response:
+        plan_req = PlanPush.Request(object_id=req.object_id, start_from_object_state=True, mass=req.mass,
+                                    max_speed=req.max_speed, position_tolerance=aim.position_tolerance,
+                                    yaw_tolerance=aim.yaw_tolerance)
+        plan_req.header.frame_id = self.table_frame
+        z = self._last_z(req.object_id)
+        plan_req.goal_pose = pose_msg(aim.pose, z)
+        return self._call(self.plan_client, plan_req, "plan_push")
+
+    def _push(self, object_id: str, plan: PlanPush.Response) -> None:
+        res = self._call(self.push_client, PushObject.Request(object_id=object_id, impulse=plan.impulse,
+                                                              point=plan.contact_point), "push_object")
+        if not res.success:
+            raise EpisodeError("invalid", f"push_object refused the push: {res.message}")
+
+    # ---------------------------------------------------------------------------------------- observing
+    def _mark(self, object_id: str) -> int:
+        """A position in the object's state history: the states after it arrived after this call."""
+        with self._cond:
+            return self._received.get(object_id, 0)
+
+    def _since(self, object_id: str, mark: int) -> tuple[list[ObjectState], int]:
+        """States of object_id received after `mark` (call with the condition held), and the new mark."""
+        states = self._states.get(object_id, deque())
+        total = self._received.get(object_id, 0)
+        return list(states)[max(0, mark - (total - len(states))):], total
+
+    def _observe(self, req, plan: PlanPush.Response, start: ObjectState, mark: int, feedback, handle
+                 ) -> ObjectState:
+        """Wait for the push to move the object, then for it to rest; the rest state. Re-predicts after
+        steps_in moving states."""
+        object_id = req.object_id
+        motion_timeout = float(self._param("external_motion_timeout" if req.execute_externally else
+                                           "motion_timeout"))
+        steps_in = int(self._param("steps_in"))
+        feedback.stage = "observing"
+        moved: list[ObjectState] = []
+        quiet, limit = 0, motion_timeout
+        deadline = time.monotonic() + limit
+        while True:
+            with self._cond:
+                new, mark = self._since(object_id, mark)
+                if not new:
+                    if not moved and handle.is_cancel_requested:  # nothing moves yet: stop waiting for it
+                        raise EpisodeError("cancelled", f"cancelled before push {feedback.push_index} moved "
+                                                        "the object")
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        what = "come to rest" if moved else "start moving"
+                        raise EpisodeError("timeout", f"push {feedback.push_index}: the object did not {what} "
+                                                      f"within {limit:g} s")
+                    self._cond.wait(min(left, 0.5))
+                    continue
+            for s in new:
+                if not moved:
+                    if not moving(s):
+                        continue
+                    limit = float(self._param("rest_timeout"))
+                    deadline = time.monotonic() + limit
+                moved.append(s)
+                quiet = 0 if moving(s) else quiet + 1
+                if len(moved) == steps_in + 1 and steps_in > 0:
+                    self._repredict(req, plan, start, moved, feedback, handle)
+                if quiet >= REST_FRAMES or (s.toppled and quiet >= 1):
+                    return s
+
+    def _repredict(self, req, plan: PlanPush.Response, start: ObjectState, moved: list[ObjectState], feedback,
+                   handle) -> None:
+        """Feed the observed states after the push's first (frame 0) to the model: a better rest prediction."""
+        pred = PredictTrajectory.Request(object_id=req.object_id, initial_pose=moved[0].pose,
+                                         initial_twist=moved[0].twist, observed=moved[1:])
+        pred.header.frame_id = self.table_frame
+        try:
+            res = self._call(self.predict_client, pred, "predict_trajectory")
+        except EpisodeError as exc:
+            self.get_logger().warning(f"push_to_goal: no re-prediction: {exc}")
+            return
+        if res.success and res.trajectory.states:
+            feedback.predicted_rest_pose = res.trajectory.states[-1].pose
+            feedback.steps_in = len(moved) - 1
+            handle.publish_feedback(feedback)
+
+
+def pose_msg(p: Pose2D, z: float):
+    return pose([p.x, p.y, z], yaw_quaternion(p.yaw))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(PusherNode, "pusher", args, threads=4)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
