@@ -78,14 +78,17 @@ def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np
 
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
-        max_topple: float, robust: int = 6, adapt: bool = True) -> dict:
+        max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0) -> dict:
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
 
-    planner = PushPlanner(model, PlannerConfig(time_budget=budget, max_topple_probability=max_topple,
-                                               robust_candidates=robust))
+    cfg = PlannerConfig(time_budget=budget, max_topple_probability=max_topple, robust_candidates=robust)
+    if iterations:  # a fixed search, independent of the machine's load (for comparing planner variants)
+        cfg = PlannerConfig(time_budget=60.0, samples=48, max_iterations=iterations,
+                            max_topple_probability=max_topple, robust_candidates=robust)
+    planner = PushPlanner(model, cfg)
     planner.warm_up()
     rows, times, contact_mm = [], [], []
     t0 = time.monotonic()
@@ -95,6 +98,8 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
         def execute(sim_, plan, mode="impulse", num_frames=76):  # measure every contact against the true mesh
             pos, quat, _, _ = sim_.state()
             contact_mm.append(1e3 * surface_distance(sim_, plan.contact_point, pos, quat))
+            if contact_mm[-1] > 2.0:
+                print(f"    contact {contact_mm[-1]:.1f} mm off the surface of {sim_.shape.name}", flush=True)
             return original(sim_, plan, mode, num_frames)
 
         closed_loop.execute = execute
@@ -116,7 +121,10 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                              and p1.yaw_error <= math.radians(10.0))
                 rows.append({"group": c["group"], "first": first, "final": bool(res.success),
                              "outcome": res.outcome, "pushes": len(res.pushes)})
-                print(f"  [{name}] {c['group']:<13} {shape.name:<28} 1 push: {'ok ' if first else 'no '} "
+                e1 = (f"{100 * p1.position_error:4.1f} cm {math.degrees(p1.yaw_error):5.1f} deg (predicted "
+                      f"{100 * p1.plan.position_error:.1f} cm, {math.degrees(p1.plan.yaw_error):.1f} deg)"
+                      if p1 else "-")
+                print(f"  [{name}] {c['group']:<13} {shape.name:<28} 1 push: {'ok ' if first else 'no '} {e1:<46} "
                       f"{res.outcome:<13} after {len(res.pushes)}: {res.message}", flush=True)
         finally:
             closed_loop.execute = original
@@ -146,6 +154,8 @@ def main() -> int:
     ap.add_argument("--skip-pybullet", action="store_true")
     ap.add_argument("--robust-candidates", type=int, default=6, help="planner robust_candidates (0: no check)")
     ap.add_argument("--no-adapt", action="store_true", help="do not aim pushes by the observed slide ratio")
+    ap.add_argument("--iterations", type=int, default=0,
+                    help="fixed search (48 samples x N CEM iterations, no time budget) to compare variants")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -158,12 +168,12 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     cases = trials(args.trials, args.seed)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
-                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt)]
+                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations)]
     if not args.skip_pybullet:
         with PybulletModel(friction=args.friction * (1 + args.friction_error)) as pb:
             results.append(run(pb, f"pybullet hull, mu +{100 * args.friction_error:.0f}%", cases, args.max_pushes,
                                args.budget, args.friction, args.max_topple, args.robust_candidates,
-                               not args.no_adapt))
+                               not args.no_adapt, args.iterations))
     print(f"\n{args.trials} trials (goal 8-22 cm away, yaw change up to 45 deg; success: within 2 cm and 10 deg, "
           f"upright); planning budget {args.budget} s per push, {args.threads} thread(s)")
     print(f"| planner model | success, 1 push | success, <= {args.max_pushes} pushes | planning time per push "

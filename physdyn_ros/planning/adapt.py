@@ -92,8 +92,9 @@ class OnlineAdapter:
             self._obs[key].append(a)
         k = self.steps_in
         if self.observed_steps <= self.max_steps_in:  # beyond max_steps_in the prediction no longer changes
+            obs = self._obs
             self.prediction = repredict(self.predictor, self.shape, self.lin_vel, self.ang_vel,
-                                        *(self._obs[key][:k] for key in ("positions", "orientations", "lin_vels",
-                                                                         "ang_vels")),
-                                        horizon=self.horizon, position=self.position, orientation=self.orientation)
+                                        obs["positions"][:k], obs["orientations"][:k], obs["lin_vels"][:k],
+                                        obs["ang_vels"][:k], horizon=self.horizon, position=self.position,
+                                        orientation=self.orientation)
         return self.prediction

@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
             print(json.dumps(plan_dict(plan), indent=1)) if args.json else _print_plan(plan)
             return 0
         result = push_to_goal(sim, planner, goal, max_pushes=args.max_pushes, mass=sim.mass)
+    assert result.final_pose is not None  # push_to_goal always ends with the observed pose
     if args.json:
         print(json.dumps({"success": result.success, "message": result.message,
                           "final_pose": [result.final_pose.x, result.final_pose.y,

@@ -75,7 +75,8 @@ class AnalyticSlidingModel:
         if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or \
                 not 1 <= int(horizon) <= self.max_horizon:
             raise ValueError(f"horizon must be an integer in 1..{self.max_horizon}, got {horizon!r}")
-        codes = [self._code(s) for s in shapes] if isinstance(shapes, (list, tuple)) else [self._code(shapes)]
+        codes = [self._code(s) for s in shapes] if isinstance(shapes, (list, tuple)) else \
+            [self._code(shapes)]  # type: ignore[arg-type]  # a single code or cloud
         v = np.atleast_2d(np.asarray(lin_vels, dtype=np.float64))
         w = np.atleast_2d(np.asarray(ang_vels, dtype=np.float64))
         b = max(len(codes), len(v), len(w))

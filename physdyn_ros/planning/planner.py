@@ -357,7 +357,7 @@ class PushPlanner:
         horizon = cfg.auto_horizon(float(self.model.dt), int(self.model.max_horizon))
         delta = goal.pose.xy - start.xy
         dist = float(np.linalg.norm(delta))
-        yaw_gap = abs(wrap_angle(goal.pose.yaw - start.yaw))
+        yaw_gap = abs(float(wrap_angle(goal.pose.yaw - start.yaw)))
         if dist <= goal.position_tolerance and (goal.ignores_yaw or yaw_gap <= goal.yaw_tolerance):
             return self._no_push(start, goal, body, code, horizon, t0)
         if dist - goal.position_tolerance > cfg.reach():
@@ -378,7 +378,7 @@ class PushPlanner:
                         mass=body.mass, offset=0.0, contact_height=float(body.com[2]), start=start, goal=goal,
                         final_pose=start, final_position=pos[-1],
                         position_error=float(np.linalg.norm(goal.pose.xy - start.xy)),
-                        yaw_error=0.0 if goal.ignores_yaw else abs(wrap_angle(goal.pose.yaw - start.yaw)),
+                        yaw_error=0.0 if goal.ignores_yaw else abs(float(wrap_angle(goal.pose.yaw - start.yaw))),
                         topple_probability=0.0, robust_topple_probability=0.0, spread=0.0, within_tolerance=True,
                         trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
                         horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
@@ -529,9 +529,9 @@ class _Search:
         cost = (pos_err / g.position_tolerance) ** 2 + (speed_end / MOVING_SCALE) ** 2 + 2.0 * topple
         if not g.ignores_yaw:
             cost = cost + (yaw_err / g.yaw_tolerance) ** 2
-        off = np.zeros(len(cost), dtype=bool)
+        off: np.ndarray = np.zeros(len(cost), dtype=bool)
         if cfg.table is not None:
-            off = ~cfg.table.contains(batch.positions[..., :2]).all(axis=1)
+            off = np.logical_not(np.all(cfg.table.contains(batch.positions[..., :2]), axis=1))
         cost = cost + INFEASIBLE * ((topple > cfg.max_topple_probability) | off)
         cost = np.where(np.isfinite(cost), cost, np.inf)  # a diverging model must never win
         return cost, pos_err, yaw_err, topple, off
@@ -554,13 +554,14 @@ class _Search:
         std_floor = np.array([0.01, 0.01, 0.02, 0.02])
         best: Optional[_Candidate] = None
         elites: list[_Candidate] = []
-        mean = std = None
+        mean: Optional[np.ndarray] = None
+        std: Optional[np.ndarray] = None
         while self.iterations < cfg.max_iterations:
             n = self._batch_size(self.cem_deadline)
             if self.iterations > 0 and n < 8:
                 break  # the budget is spent
             n = max(n, 8)
-            if mean is None:
+            if mean is None or std is None:
                 params = self._first(n)
             else:
                 params = np.clip(mean + std * self.rng.standard_normal((n, 4)), lo, hi)
