@@ -150,7 +150,7 @@ def main() -> int:
     ap.add_argument("--budget", type=float, default=0.2, help="planning time budget per push, s")
     ap.add_argument("--friction", type=float, default=0.5, help="true friction of the simulated table")
     ap.add_argument("--friction-error", type=float, default=0.2, help="pybullet planner: relative friction error")
-    ap.add_argument("--max-topple", type=float, default=0.2, help="planner max_topple_probability")
+    ap.add_argument("--max-topple", type=float, default=0.35, help="planner max_topple_probability")
     ap.add_argument("--skip-pybullet", action="store_true")
     ap.add_argument("--robust-candidates", type=int, default=6, help="planner robust_candidates (0: no check)")
     ap.add_argument("--no-adapt", action="store_true", help="do not aim pushes by the observed slide ratio")

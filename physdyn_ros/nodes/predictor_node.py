@@ -137,7 +137,7 @@ class PredictorNode(ManagedNode):
         declare(self, "plan_time_budget", 0.2, "s of planning per plan_push request (default of the request's "
                 "time_budget)", low=0.01, high=30.0)
         declare(self, "plan_max_speed", 1.5, "m/s, fastest push plan_push may choose (request default)", low=0.01)
-        declare(self, "plan_max_topple_probability", 0.2, "plan_push rejects pushes predicted to topple more "
+        declare(self, "plan_max_topple_probability", 0.35, "plan_push rejects pushes predicted to topple more "
                 "likely than this", low=0.0, high=1.0)
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",

@@ -173,7 +173,7 @@ class PlannerConfig:
 
     max_speed: float = 1.5  # m/s, fastest initial COM speed a push may give
     min_speed: float = 0.05  # m/s, slowest push considered
-    max_topple_probability: float = 0.2  # candidates predicted to topple more likely than this are rejected
+    max_topple_probability: float = 0.35  # candidates predicted to topple more likely than this are rejected
     time_budget: float = 0.5  # s, wall time of one plan() call (at least one batch always runs)
     samples: int = 128  # candidates per CEM iteration
     elite_fraction: float = 0.1  # share of candidates that shape the next iteration (at least 4)
