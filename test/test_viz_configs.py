@@ -10,6 +10,8 @@ import yaml
 from conftest import ROOT
 
 VIZ = ROOT / "config" / "viz"
+#: How the nodes create publishers: plain ones, and the managed nodes' lifecycle publishers (ros/lifecycle.py).
+PUBLISHER_CALLS = ("create_publisher", "create_lifecycle_publisher", "configured_publisher")
 
 
 def published_topics() -> set[str]:
@@ -17,7 +19,7 @@ def published_topics() -> set[str]:
     names = set()
     for path in (ROOT / "physdyn_ros" / "nodes").glob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "create_publisher" \
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", "") in PUBLISHER_CALLS \
                     and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant):
                 names.add("/" + node.args[1].value.lstrip("/"))
     assert {"/cloud", "/predicted_path", "/predicted_markers", "/diagnostics"} & names, names
