@@ -145,26 +145,31 @@ def test_unknown_or_malformed_overrides_are_refused(tmp_path):
 
 
 def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
-    """Every parameter in config/suite.yaml exists with the right type (rclpy ignores unknown ones silently)."""
-    from physdyn_ros.nodes.perception_node import PerceptionNode
-    from physdyn_ros.nodes.predictor_node import PredictorNode
-    from physdyn_ros.nodes.sim_node import SimNode
+    """Every parameter in config/suite.yaml exists with the right type (rclpy ignores unknown ones silently), for
+    every node of the launcher's SPECS (each a managed node: its module's ManagedNode subclass)."""
+    import importlib
+
+    from physdyn_ros.launcher import SPECS
+    from physdyn_ros.ros.lifecycle import ManagedNode
 
     config = yaml.safe_load(CONFIG.read_text())
     assert set(config) == {"/**"} | {f"/**/{n}" for n, _ in NODES}
     shared = config["/**"]["ros__parameters"]
-    for cls, name in ((SimNode, "sim"), (PerceptionNode, "perception"), (PredictorNode, "predictor")):
-        node = cls(cli_args=["--ros-args", "--params-file", str(CONFIG)],
-                   parameter_overrides=[Parameter("model_path", value=str(tiny_model))]
-                   if name != "sim" else [])
+    for spec in SPECS:
+        name, module = spec.name, importlib.import_module(f"physdyn_ros.nodes.{spec.executable}")
+        classes = [c for c in vars(module).values() if isinstance(c, type) and issubclass(c, ManagedNode)
+                   and c.__module__ == module.__name__]
+        assert len(classes) == 1, f"{module.__name__}: one managed node class expected, found {classes}"
+        node = classes[0](cli_args=["--ros-args", "--params-file", str(CONFIG)],
+                          parameter_overrides=[Parameter("model_path", value=str(tiny_model))] if spec.model else [])
         try:
-            assert node.get_name() == name
+            assert node.get_name() == name and node.state == "active"  # autostart from the params file
             own = config[f"/**/{name}"]["ros__parameters"]
             unknown = sorted(k for k in own if not node.has_parameter(k))
             assert not unknown, f"{name}: parameters in {CONFIG.name} that the node does not declare: {unknown}"
             for key, value in own.items():
                 assert node.get_parameter(key).value == value, (name, key)
-            if name != "sim":
+            if spec.model:
                 assert node.has_parameter("model_path")
             # the launcher refuses overrides of any other name: its list must be exactly the node's
             assert set(known_parameters(name)) == set(node._parameters), name
