@@ -82,4 +82,5 @@ def generate_launch_description():
                                condition=IfCondition(LaunchConfiguration('use_sim')), **common)),
         *managed(LifecycleNode(package='physdyn_ros', executable='perception_node', name='perception', **common)),
         *managed(LifecycleNode(package='physdyn_ros', executable='predictor_node', name='predictor', **common)),
+        *managed(LifecycleNode(package='physdyn_ros', executable='pusher_node', name='pusher', **common)),
     ])

@@ -57,6 +57,7 @@ SPECS: tuple[NodeSpec, ...] = (
     NodeSpec("sim", "sim_node", not_declared=("model_path",)),
     NodeSpec("perception", "perception_node", model=True),
     NodeSpec("predictor", "predictor_node", model=True),
+    NodeSpec("pusher", "pusher_node", not_declared=("model_path",)),
 )
 #: (node name, executable) in start order.
 NODES: tuple[tuple[str, str], ...] = tuple((spec.name, spec.executable) for spec in SPECS)

@@ -58,7 +58,9 @@ def suite(rclpy_init):
                                        Parameter("shape_seed", value=3), Parameter("publish_cloud_rate", value=5.0)])
     perception = PerceptionNode()
     # the action's mechanics are under test here, not the model's topple calibration (bench/bench_planning.py)
-    predictor = PredictorNode(parameter_overrides=[Parameter("plan_max_topple_probability", value=0.6)])
+    # (and a planning budget that a loaded test machine still searches well with)
+    predictor = PredictorNode(parameter_overrides=[Parameter("plan_max_topple_probability", value=0.6),
+                                                   Parameter("plan_time_budget", value=0.6)])
     pusher = PusherNode(parameter_overrides=[Parameter("motion_timeout", value=3.0),
                                             Parameter("external_motion_timeout", value=1.0)])
     user = rclpy_init.create_node("pusher_user")
@@ -74,13 +76,13 @@ def test_push_to_goal_reaches_the_goal_with_contacts_on_the_surface(suite):
     sim, pusher, client, _ = suite
     x0, y0, _ = sim.spawn_pose
     result = client.send(goal_msg(x0 + 0.12, y0 + 0.03, position_tolerance=0.03, yaw_tolerance=math.pi,
-                                  max_pushes=3))
+                                  max_pushes=4))
     trace = [(f.stage, round(f.contact_point.x, 3), round(f.contact_point.y, 3), round(f.impulse.x, 3),
               round(f.impulse.y, 3), round(f.predicted_rest_pose.position.x, 3),
               round(f.predicted_rest_pose.position.y, 3), round(f.observed_rest_pose.position.x, 3),
               round(f.observed_rest_pose.position.y, 3), round(f.position_error, 3)) for f in client.feedback]
     assert result.success and result.outcome == "reached", (result.message, trace)
-    assert 1 <= result.pushes <= 3 and result.position_error <= 0.03
+    assert 1 <= result.pushes <= 4 and result.position_error <= 0.03
     stages = [f.stage for f in client.feedback]
     assert stages[:2] == ["planning", "pushing"] and "rested" in stages, stages
     pushed = [f for f in client.feedback if f.stage == "pushing"]

@@ -15,6 +15,9 @@ For each goal (physdyn_ros/action/PushToGoal):
 A thin adapter: the episode's rules live in planning.session, the planning in the predictor (which holds the
 model and the shape features), the physics in the sim node or the real world. No model is loaded here.
 Goals run one at a time (a second goal is rejected while one runs: one pusher, one object moving).
+A managed node like the others (ros/lifecycle.py): the action server exists from configure to cleanup and
+accepts goals only while active; the subscriptions run while active; a goal running when the node is
+deactivated stops before its next push with the reason.
 """
 from __future__ import annotations
 
@@ -26,9 +29,8 @@ from collections import deque
 from typing import Optional
 
 import numpy as np
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.node import Node
 
 from ..action import PushToGoal
 from ..conventions import REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL, TABLE_FRAME
@@ -37,6 +39,7 @@ from ..planning.planner import Goal, PlanningError, Pose2D
 from ..planning.session import PushSession, Stop, goal_errors
 from ..ros.convert import pose, pose_to_numpy, quat_yaw, time_to_ns, twist_to_numpy, yaw_quaternion
 from ..ros.diagnostics import OK, WARN, Diagnostics, Report
+from ..ros.lifecycle import ManagedNode
 from ..ros.params import declare
 from ..ros.run import run_node
 from ..srv import PlanPush, PredictTrajectory, PushObject
@@ -62,7 +65,7 @@ def moving(state: ObjectState) -> bool:
     return bool(np.linalg.norm(lin) >= REST_LIN_VEL or np.linalg.norm(ang) >= REST_ANG_VEL)
 
 
-class PusherNode(Node):
+class PusherNode(ManagedNode):
     def __init__(self, **kwargs) -> None:
         super().__init__("pusher", **kwargs)
         self.table_frame = declare(self, "table_frame", TABLE_FRAME, "fixed frame of goals and object states",
@@ -94,6 +97,7 @@ class PusherNode(Node):
         self.counts = {k: 0 for k in ("goals", "reached", "refused", "toppled", "out_of_pushes", "cancelled",
                                       "invalid", "timeout", "pushes")}
         self.last_result = ""
+        # clients hold no resources: made once, used while active
         clients = ReentrantCallbackGroup()
         self.plan_client = self.create_client(PlanPush, self.get_parameter("plan_service").value,
                                               callback_group=clients)
@@ -101,15 +105,30 @@ class PusherNode(Node):
                                                  callback_group=clients)
         self.push_client = self.create_client(PushObject, self.get_parameter("push_service").value,
                                               callback_group=clients)
-        inputs = MutuallyExclusiveCallbackGroup()
-        self.create_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=inputs)
-        self.create_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
-                                 callback_group=inputs)
-        self.server = ActionServer(self, PushToGoal, "push_to_goal", execute_callback=self._execute,
-                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                                   callback_group=ReentrantCallbackGroup())
+        self._inputs = MutuallyExclusiveCallbackGroup()
         self.diagnostics = Diagnostics(self, "push_to_goal", self.report)
-        self.get_logger().info("ready: action push_to_goal")
+        self.start()  # autostart: configure + activate
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+    def configure(self) -> None:
+        self.configured_action_server(PushToGoal, "push_to_goal", self._execute, goal_callback=self._on_goal,
+                                      cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                      callback_group=ReentrantCallbackGroup())
+
+    def activate(self) -> None:
+        self.active_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._inputs)
+        self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
+                                 callback_group=self._inputs)
+
+    def cleanup(self) -> None:
+        with self._cond:
+            self._states.clear()
+            self._received.clear()
+            self._feature_ns.clear()
+
+    def describe(self) -> str:
+        return (f"action push_to_goal, plans from '{self.plan_client.srv_name}', pushes through "
+                f"'{self.push_client.srv_name}'")
 
     # ------------------------------------------------------------------------------------------ inputs
     def _on_state(self, msg: ObjectState) -> None:
@@ -227,6 +246,8 @@ class PusherNode(Node):
                 return stop, session, pose
             if handle.is_cancel_requested:
                 return Stop("cancelled", f"cancelled before push {len(session.steps) + 1}"), session, pose
+            if not self.is_active:
+                raise EpisodeError("invalid", f"stopped before push {len(session.steps) + 1}: {self.not_serving()}")
             k = len(session.steps) + 1
             feedback = PushToGoal.Feedback(push_index=k, stage="planning")
             feedback.position_error, feedback.yaw_error = goal_errors(pose, goal)
