@@ -342,3 +342,35 @@ def test_push_session_stops_for_each_reason_and_aims_by_the_slide_ratio():
     assert t.gain == pytest.approx(2.0)
     with pytest.raises(ValueError, match="max_pushes"):
         PushSession(goal, max_pushes=0)
+
+
+def test_tip_estimate_agrees_with_pybullet():
+    """PushBody.tip_ratios -> tip_probability against pybullet on a tall 4 x 4 x 16 cm box pushed at several
+    heights and speeds: every push that topples it is above the planner's default limit, every one that does not
+    is below it."""
+    from physdyn_ros import geometry as geo
+    from physdyn_ros.planning import body_from_cloud
+    from physdyn_ros.planning.planner import tip_probability
+    from physdyn_ros.shapes.core import convex_hull, make_shape
+    from physdyn_ros.shapes.solids import box_points
+    from physdyn_ros.sim.push import record
+    from physdyn_ros.sim.simulator import SimConfig, Simulator
+
+    v, f = convex_hull(box_points([-0.02, -0.02, -0.08], [0.02, 0.02, 0.08]))
+    shape = make_shape("tall_box", "box", v, f, convex=True)
+    limit = PlannerConfig().max_topple_probability
+    outcomes = []
+    with Simulator(SimConfig(friction=0.5)) as sim:
+        for frac, speed in [(0.2, 0.2), (0.2, 0.3), (0.2, 0.6), (0.5, 0.2), (0.5, 0.3), (0.5, 0.6), (0.9, 0.3)]:
+            sim.spawn(shape, xy=(0.0, 0.0), yaw=0.0)
+            pos, quat, _, _ = sim.state()
+            pts = np.asarray(shape.points, dtype=np.float64)
+            body = body_from_cloud(geo.quat_rotate(np.broadcast_to(quat, (len(pts), 4)), pts) + pos, mass=sim.mass)
+            lo, hi = body.height_range(0.0, 1.0)
+            contact, _ = body.contacts(np.array([[1.0, 0.0]]), np.zeros(1), np.array([lo + frac * (hi - lo)]))
+            vel = np.array([[speed, 0.0, 0.0]])
+            p = float(tip_probability(body.tip_ratios(vel, body.angular_velocity(vel, contact), 0.5))[0])
+            sim.apply_impulse(sim.mass * vel[0], contact[0])
+            outcomes.append((frac, speed, p, bool(record(sim, 76)["topple_index"] >= 0)))
+    assert all((p > limit) == toppled for _, _, p, toppled in outcomes), outcomes
+    assert any(t for *_, t in outcomes) and not all(t for *_, t in outcomes)

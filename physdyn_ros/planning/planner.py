@@ -62,6 +62,16 @@ class PlanningError(ValueError):
     """The request cannot be planned; the message says why (bad input, unreachable goal, every push topples)."""
 
 
+#: Tipping energy ratio at which tip_probability is 1 - 1/e: a 4 x 4 x 16 cm box in pybullet stayed up at ratios
+#: up to 0.33 and toppled from 0.5 (test_planning.py::test_tip_estimate_agrees_with_pybullet).
+TIP_SCALE = 0.6
+
+
+def tip_probability(ratio: np.ndarray) -> np.ndarray:
+    """Topple risk from PushBody.tip_ratios: 1 - exp(-(r / TIP_SCALE)^2) (0.26 at r = 0.33, 0.50 at r = 0.5)."""
+    return 1.0 - np.exp(-(np.asarray(ratio) / TIP_SCALE) ** 2)
+
+
 def final_speed(positions: np.ndarray, dt: float) -> np.ndarray:
     """Horizontal speed (B,) over the last step of trajectories (B, T, 3), from the displacement.
 
@@ -188,6 +198,9 @@ class PlannerConfig:
     robust_candidates: int = 6  # distinct elites re-checked under perturbations (0 = no robustness check)
     robust_samples: int = 6  # perturbed roll-outs per re-checked elite
     robust_share: float = 0.25  # share of the time budget kept for the robustness check
+    tip_check: bool = True  # also count the rigid-body tipping estimate (PushBody.tip_ratios) as topple risk
+    max_spin: float = 40.0  # rad/s, pushes giving a faster initial angular velocity are infeasible (the model was
+    #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
     density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
     refine_steps: int = 0  # gradient steps through the learned model after CEM (0 = off)
@@ -196,7 +209,7 @@ class PlannerConfig:
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
-                     "density", "refine_lr"):
+                     "density", "refine_lr", "max_spin"):
             v = _finite(getattr(self, name), name)
             if v <= 0:
                 raise PlanningError(f"{name} must be positive, got {v}")
@@ -513,18 +526,22 @@ class _Search:
         ema = self.planner._sec_per_step
         self.planner._sec_per_step = per_step if ema is None else 0.5 * ema + 0.5 * per_step
         self.rollouts += len(s)
-        costs, pos_err, yaw_err, topple, off = self.costs(batch)
+        tip = self.body.tip_ratios(v, w, self.cfg.friction) if self.cfg.tip_check else None
+        costs, pos_err, yaw_err, topple, off = self.costs(batch, tip)
+        costs = costs + INFEASIBLE * (np.linalg.norm(w, axis=1) > self.cfg.max_spin)
         return [_Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(hf[i]), float(e[i]), contacts[i],
                            w[i], float(pos_err[i]), float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i])
                 for i in range(len(s))]
 
-    def costs(self, batch: TrajectoryBatch) -> tuple[np.ndarray, ...]:
+    def costs(self, batch: TrajectoryBatch, tip: Optional[np.ndarray] = None) -> tuple[np.ndarray, ...]:
         g, cfg = self.goal, self.cfg
         final = batch.positions[:, -1, :2]
         pos_err = np.linalg.norm(final - g.pose.xy, axis=1)
         yaw = self.start.yaw + yaw_of(batch.orientations[:, -1])
         yaw_err = np.abs(wrap_angle(yaw - g.pose.yaw))
         topple = batch.topple_prob.max(axis=1)
+        if tip is not None:
+            topple = np.maximum(topple, tip_probability(tip))
         speed_end = final_speed(batch.positions, float(self.model.dt))
         cost = (pos_err / g.position_tolerance) ** 2 + (speed_end / MOVING_SCALE) ** 2 + 2.0 * topple
         if not g.ignores_yaw:
