@@ -374,3 +374,28 @@ def test_tip_estimate_agrees_with_pybullet():
             outcomes.append((frac, speed, p, bool(record(sim, 76)["topple_index"] >= 0)))
     assert all((p > limit) == toppled for _, _, p, toppled in outcomes), outcomes
     assert any(t for *_, t in outcomes) and not all(t for *_, t in outcomes)
+
+
+def test_no_plan_spins_faster_than_max_spin(planner):
+    """A push over the spin limit is infeasible: never returned (it was, when every candidate broke the limit)."""
+    cfg = replace(FAST, max_spin=0.5, max_iterations=2)
+    goal = Goal(Pose2D(0.1, 0.05, 1.2), position_tolerance=0.02, yaw_tolerance=math.radians(10))
+    try:
+        plan = planner.plan(box_cloud(half=(0.03, 0.03, 0.03)), Pose2D(0.0, 0.0, 0.0), goal, config=cfg)
+    except PlanningError as exc:
+        assert "max_spin" in str(exc)
+    else:
+        assert np.linalg.norm(plan.ang_vel) <= 0.5 + 1e-9
+
+
+def test_adapted_aim_stays_on_the_table_and_within_reach():
+    from physdyn_ros.planning.session import PushSession
+
+    goal = Goal(Pose2D(0.9, 0.0, 0.0), yaw_tolerance=math.pi)
+    s = PushSession(goal)
+    s.record(Pose2D(0.5, 0.0, 0.0), Pose2D(0.7, 0.0, 0.0), Pose2D(0.6, 0.0, 0.0), False)  # slid half as far
+    assert s.gain == pytest.approx(0.5)
+    here = Pose2D(0.6, 0.0, 0.0)
+    assert s.aim(here).pose.x == pytest.approx(1.2)  # unclipped: past the table's edge
+    assert s.aim(here, TableBounds()).pose.x == pytest.approx(1.0)
+    assert s.aim(here, None, reach=0.2).pose.x == pytest.approx(0.8)

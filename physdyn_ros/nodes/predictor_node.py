@@ -666,7 +666,9 @@ class PredictorNode(ManagedNode):
         res.within_tolerance = bool(plan.within_tolerance)
         res.planning_time = float(plan.planning_time)
         res.trajectory = trajectory_to_msg(plan.trajectory, self.table_frame, stamp, object_id, self.model_id)
-        res.topple_probability = res.trajectory.topple_probability
+        # the plan's risk: the model's, the tipping estimate's and the worst of the robustness check
+        res.topple_probability = float(max(res.trajectory.topple_probability, plan.topple_probability,
+                                           plan.robust_topple_probability))
         self.get_logger().info(f"plan_push '{object_id}': {plan.message}")
         return res
 

@@ -55,6 +55,10 @@ class EpisodeError(Exception):
         self.outcome = outcome
 
 
+#: Pushes per goal at most (a goal's max_pushes is a uint32).
+MAX_PUSHES = 50
+
+
 def pose2d(msg) -> Pose2D:
     p, q = pose_to_numpy(msg, zero_is_identity=True)
     return Pose2D(float(p[0]), float(p[1]), float(quat_yaw(q)))
@@ -91,7 +95,9 @@ class PusherNode(ManagedNode):
         self._received: dict[str, int] = {}  # states received per object in all (the deque drops the oldest)
         self._feature_ns: dict[str, int] = {}  # stamp of the newest shape feature per object
         self._cond = threading.Condition()
-        self._busy = threading.Lock()
+        self._busy = threading.Lock()  # held by the running goal
+        self._reserved = False  # a goal was accepted and has not finished (set under _cond)
+        self._stopping = False  # deactivate / cleanup: running waits end at once
         self._session: Optional[PushSession] = None  # the running goal's, for a result after an early stop
         self._pose: Optional[Pose2D] = None
         self.counts = {k: 0 for k in ("goals", "reached", "refused", "toppled", "out_of_pushes", "cancelled",
@@ -116,11 +122,24 @@ class PusherNode(ManagedNode):
                                       callback_group=ReentrantCallbackGroup())
 
     def activate(self) -> None:
+        self._stopping = False
         self.active_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._inputs)
         self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
                                  callback_group=self._inputs)
 
+    def deactivate(self) -> None:
+        self._stop_goal()
+
+    def _stop_goal(self) -> None:
+        """A running goal stops at its next wait or push with the reason (no DDS input arrives any more)."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+
     def cleanup(self) -> None:
+        self._stop_goal()
+        if self._busy.acquire(timeout=5.0):  # the goal ends before its action server is destroyed
+            self._busy.release()
         with self._cond:
             self._states.clear()
             self._received.clear()
@@ -148,7 +167,8 @@ class PusherNode(ManagedNode):
         pushes on the surface where it lies now."""
         timeout = float(self._param("feature_timeout"))
         with self._cond:
-            if not self._cond.wait_for(lambda: self._feature_ns.get(object_id, 0) >= after_ns, timeout):
+            if not self._cond.wait_for(lambda: self._stopping or self._feature_ns.get(object_id, 0) >= after_ns,
+                                       timeout):
                 raise EpisodeError("timeout", f"push {push_index}: no shape feature of '{object_id}' at rest "
                                               f"within {timeout:g} s (is the perception node running?)")
 
@@ -157,10 +177,16 @@ class PusherNode(ManagedNode):
         return level, self.last_result or "no goal yet", dict(self.counts)
 
     def _on_goal(self, _goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning("push_to_goal: rejected, a goal is already running")
-            return GoalResponse.REJECT
+        with self._cond:  # reserved here, released when _execute ends: two goals sent at once get one accept
+            if self._reserved:
+                self.get_logger().warning("push_to_goal: goal rejected: a goal is already running")
+                return GoalResponse.REJECT
+            self._reserved = True
         return GoalResponse.ACCEPT
+
+    def _check_serving(self) -> None:
+        if self._stopping or not self.is_active:
+            raise EpisodeError("invalid", f"stopped: {self.not_serving()}")
 
     def _param(self, name: str):
         return self.get_parameter(name).value
@@ -173,11 +199,19 @@ class PusherNode(ManagedNode):
         done = threading.Event()
         future.add_done_callback(lambda _f: done.set())
         if not done.wait(timeout + 30.0):
+            client.remove_pending_request(future)
             raise EpisodeError("timeout", f"{what} service '{client.srv_name}' did not answer")
         return future.result()
 
     # ------------------------------------------------------------------------------------------- goal
     def _execute(self, handle) -> PushToGoal.Result:
+        try:
+            return self._run_goal(handle)
+        finally:
+            with self._cond:
+                self._reserved = False
+
+    def _run_goal(self, handle) -> PushToGoal.Result:
         with self._busy:
             self._session, self._pose = None, None
             self.counts["goals"] += 1
@@ -188,7 +222,8 @@ class PusherNode(ManagedNode):
                 stop, session, pose = Stop(exc.outcome, str(exc)), self._session, self._pose
             except Exception as exc:  # noqa: BLE001 - a goal ends with the reason, the node keeps serving
                 self.get_logger().error(f"push_to_goal: internal error: {type(exc).__name__}: {exc}")
-                stop, session, pose = Stop("invalid", f"internal error: {type(exc).__name__}: {exc}"), None, None
+                stop = Stop("invalid", f"internal error: {type(exc).__name__}: {exc}")
+                session, pose = self._session, self._pose
             result.success, result.outcome, result.message = stop.success, stop.outcome, stop.message
             result.pushes = len(session.steps) if session else 0
             if pose is not None and session is not None:
@@ -219,6 +254,13 @@ class PusherNode(ManagedNode):
         except (ValueError, PlanningError) as exc:
             raise EpisodeError("invalid", f"goal_pose: {exc}") from None
 
+    @staticmethod
+    def _state_pose(state: ObjectState) -> Pose2D:
+        try:
+            return pose2d(state.pose)
+        except ValueError as exc:  # PlanningError / a non-finite pose from the tracker
+            raise EpisodeError("invalid", f"object_state of '{state.object_id}': {exc}") from None
+
     def _latest(self, object_id: str) -> Optional[ObjectState]:
         with self._cond:
             states = self._states.get(object_id)
@@ -232,6 +274,8 @@ class PusherNode(ManagedNode):
         req = handle.request
         goal = self._goal(req)
         max_pushes = int(req.max_pushes or self._param("max_pushes"))
+        if max_pushes > MAX_PUSHES:
+            raise EpisodeError("invalid", f"max_pushes {max_pushes} exceeds {MAX_PUSHES}")
         session = PushSession(goal, max_pushes, adapt=bool(self._param("adapt")))
         self._session, self._pose = session, None
         if not req.object_id:
@@ -240,23 +284,28 @@ class PusherNode(ManagedNode):
         if state is None:
             raise EpisodeError("invalid", f"no object_state of '{req.object_id}' received yet")
         while True:
-            pose = self._pose = pose2d(state.pose)
+            pose = self._pose = self._state_pose(state)
             stop = session.check(pose, bool(state.toppled))
             if stop is not None:
                 return stop, session, pose
             if handle.is_cancel_requested:
                 return Stop("cancelled", f"cancelled before push {len(session.steps) + 1}"), session, pose
-            if not self.is_active:
-                raise EpisodeError("invalid", f"stopped before push {len(session.steps) + 1}: {self.not_serving()}")
+            self._check_serving()
             k = len(session.steps) + 1
             feedback = PushToGoal.Feedback(push_index=k, stage="planning")
             feedback.position_error, feedback.yaw_error = goal_errors(pose, goal)
             handle.publish_feedback(feedback)
-            plan = self._plan(req, session.aim(pose))
+            aim = session.aim(pose)
+            plan = self._plan(req, aim)
+            if not plan.success and aim is not goal:  # the slide-ratio correction must not cause a refusal
+                plan = self._plan(req, goal)
             if handle.is_cancel_requested:
                 return Stop("cancelled", f"cancelled before push {k}"), session, pose
             if not plan.success:
                 return session.refused(plan.message), session, pose
+            if not any((plan.impulse.x, plan.impulse.y, plan.impulse.z)):  # "no push needed" for another pose
+                return session.refused(f"the planner needs no push ({plan.message}) although the object is "
+                                       f"{100 * goal_errors(pose, goal)[0]:.1f} cm from the goal"), session, pose
             feedback.stage, feedback.push_twist, feedback.impulse = "pushing", plan.push_twist, plan.impulse
             feedback.contact_point, feedback.topple_probability = plan.contact_point, plan.topple_probability
             feedback.predicted_rest_pose = plan.predicted_final_pose
@@ -265,7 +314,7 @@ class PusherNode(ManagedNode):
             if not req.execute_externally:
                 self._push(req.object_id, plan)
             state = self._observe(req, plan, state, mark, feedback, handle)
-            rest = pose2d(state.pose)
+            rest = self._state_pose(state)
             session.record(pose, pose2d(plan.predicted_final_pose), rest, bool(state.toppled))
             self.counts["pushes"] += 1
             if session.check(rest, bool(state.toppled)) is None:  # another push follows: see where it lies
@@ -316,8 +365,12 @@ class PusherNode(ManagedNode):
         while True:
             with self._cond:
                 new, mark = self._since(object_id, mark)
+                if self._stopping:
+                    raise EpisodeError("invalid", f"stopped during push {feedback.push_index}: "
+                                                  f"{self.not_serving()}")
                 if not new:
-                    if not moved and handle.is_cancel_requested:  # nothing moves yet: stop waiting for it
+                    # a robot that has not pushed yet: stop waiting (a push the sim executed finishes first)
+                    if not moved and req.execute_externally and handle.is_cancel_requested:
                         raise EpisodeError("cancelled", f"cancelled before push {feedback.push_index} moved "
                                                         "the object")
                     left = deadline - time.monotonic()

@@ -17,6 +17,7 @@ from typing import Any, Optional
 import numpy as np
 
 from .. import geometry as geo
+from ..conventions import REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
 from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, yaw_of
 from .session import PushSession, goal_errors
 
@@ -80,7 +81,22 @@ def execute(sim: Any, plan: PushPlan, mode: str = "impulse", num_frames: int = 7
         sim.set_velocity(plan.lin_vel, plan.ang_vel)
     else:
         raise ValueError(f"execute mode must be one of {EXECUTE_MODES}, got {mode!r}")
-    return record(sim, num_frames)
+    rec = record(sim, num_frames)
+    settle(sim)
+    return rec
+
+
+def settle(sim: Any, max_frames: int = 450) -> bool:
+    """Step the simulator until the object rests (conventions.REST_*; at most max_frames, 30 s): a push still
+    moving at the end of its recording must not be observed mid-motion. True if it came to rest."""
+    quiet = 0
+    for _ in range(max_frames):
+        _, _, v, w = sim.state()
+        quiet = quiet + 1 if (np.linalg.norm(v) < REST_LIN_VEL and np.linalg.norm(w) < REST_ANG_VEL) else 0
+        if quiet >= REST_FRAMES:
+            return True
+        sim.step_frame()
+    return False
 
 
 def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3, mass: Optional[float] = None,
@@ -99,7 +115,9 @@ def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3
     obs = observe(sim, cloud_noise, rng)
     while (stop := session.check(obs.pose, obs.toppled)) is None:
         try:
-            plan = planner.plan(obs.cloud, obs.pose, session.aim(obs.pose), mass=mass, config=config)
+            cfg = config or planner.config
+            aim = session.aim(obs.pose, cfg.table, cfg.reach())
+            plan = planner.plan(obs.cloud, obs.pose, aim, mass=mass, config=config)
         except PlanningError as exc:
             stop = session.refused(str(exc))
             break

@@ -407,6 +407,10 @@ class PushPlanner:
                                 f"topple probability {worst:.2f} > max_topple_probability "
                                 f"{cfg.max_topple_probability:g}, contact heights {search.h_lo:.3f}-"
                                 f"{search.h_hi:.3f} m); try a lower max_speed or a nearer goal")
+        spin = float(np.linalg.norm(best.ang_vel))
+        if spin > cfg.max_spin or not math.isfinite(best.cost) or best.cost >= INFEASIBLE:
+            raise PlanningError(f"no feasible push: the best push considered spins the object at {spin:.1f} rad/s "
+                                f"(max_spin {cfg.max_spin:g}) or breaks another limit; try a nearer goal")
         traj = best.trajectory
         final = traj.positions[-1]
         final_yaw = float(wrap_angle(start.yaw + float(yaw_of(traj.orientations[-1]))))

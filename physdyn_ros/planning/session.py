@@ -28,7 +28,7 @@ from typing import Optional
 
 import numpy as np
 
-from .planner import Goal, Pose2D, wrap_angle
+from .planner import Goal, Pose2D, TableBounds, wrap_angle
 
 #: Outcomes of an episode: the goal reached, or why not. `refused`: the planner found no safe push (or the
 #: request was invalid); `toppled`: the object fell over; `out_of_pushes`: max_pushes used without reaching the
@@ -117,13 +117,20 @@ class PushSession:
                 ratios.append(float(np.clip(obs / max(pred, 1e-6), *GAIN_RANGE)))
         return float(np.exp(np.mean(np.log(ratios)))) if ratios else 1.0
 
-    def aim(self, pose: Pose2D) -> Goal:
+    def aim(self, pose: Pose2D, table: Optional[TableBounds] = None, reach: float = math.inf) -> Goal:
         """The goal to plan the next push for, from `pose`: the true goal, corrected by the slide ratio of the pushes
-        so far when adapting."""
+        so far when adapting. A corrected aim stays on `table` and within `reach` (m) of the pose, so the
+        correction never turns a reachable goal into a refusal."""
         if not self.adapt or not self.steps:
             return self.goal
         g = self.gain
-        xy = pose.xy + (self.goal.pose.xy - pose.xy) / g
+        delta = (self.goal.pose.xy - pose.xy) / g
+        dist = float(np.linalg.norm(delta))
+        if dist > reach:
+            delta = delta * (reach / dist)
+        xy = pose.xy + delta
+        if table is not None:
+            xy = np.clip(xy, [table.x_min, table.y_min], [table.x_max, table.y_max])
         return Goal(Pose2D(float(xy[0]), float(xy[1]), self.goal.pose.yaw), self.goal.position_tolerance / g,
                     self.goal.yaw_tolerance)
 
