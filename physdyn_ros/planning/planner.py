@@ -17,9 +17,11 @@ budget would be exceeded by the next one (cost per rolled-out step is measured o
 
 Robustness: the best `robust_candidates` distinct elites are rolled out again under `robust_samples` small
 perturbations each (speed, direction, offset, height: what a robot's execution and the perception get wrong).
-The push whose perturbed outcomes cost least on average, and whose perturbed topple probabilities all stay
-under the limit, wins; its spread (RMS distance of the perturbed rest positions from the nominal one) and
-worst topple probability are reported. Optionally a few gradient steps through the learned model polish the
+The push whose perturbed outcomes cost least on average, and whose topple probability under that noise (the
+mean over the push and its perturbations) stays under the limit, wins; its spread (RMS distance of the
+perturbed rest positions from the nominal one) and that probability are reported. (Requiring every perturbed
+push to stay under the limit refused 10 of 42 bench trials against 3, with as many topples: 52 % against 62 %
+within three pushes, bench_planning.py --iterations 3.) Optionally a few gradient steps through the learned model polish the
 push's velocity at the chosen contact (planning.refine).
 
 Cost of a candidate (lower is better), from its predicted final state:
@@ -266,7 +268,7 @@ class PushPlan:
     position_error: float  # m, predicted final distance to the goal
     yaw_error: float  # rad, predicted |final yaw - goal yaw| (0 when the goal ignores yaw)
     topple_probability: float  # predicted probability of toppling during the push
-    robust_topple_probability: float  # highest topple probability among the perturbed pushes (robustness check)
+    robust_topple_probability: float  # mean topple probability over this push and its perturbations (robustness)
     spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
     within_tolerance: bool  # the predicted final pose is within both tolerances
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
@@ -452,7 +454,7 @@ class _Candidate:
     off_table: bool
     trajectory: Trajectory
     robust_cost: float = math.inf  # mean cost over the perturbed pushes (robustness check)
-    robust_topple: float = 0.0  # highest topple probability of the perturbed pushes
+    robust_topple: float = 0.0  # mean topple probability over the push and its perturbed pushes
     spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
 
     @property
@@ -637,7 +639,8 @@ class _Search:
         for i, c in enumerate(chosen):
             group = perturbed[i * m:(i + 1) * m]
             c.robust_cost = float(np.mean([min(p.cost, INFEASIBLE) for p in group] + [c.cost]))
-            c.robust_topple = max(p.topple for p in group)
+            # the push's topple probability under execution noise: the mean over it and its perturbations
+            c.robust_topple = float(np.mean([c.topple] + [p.topple for p in group]))
             finals = np.array([p.trajectory.positions[-1, :2] for p in group])
             c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
         safe = [c for c in chosen if c.robust_topple <= cfg.max_topple_probability]
