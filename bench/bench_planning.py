@@ -66,15 +66,12 @@ def trials(n: int, seed: int) -> list[dict]:
 
 def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np.ndarray) -> float:
     """m from `point` (table frame) to the true mesh of the simulator's object posed at (pos, quat)."""
-    import open3d as o3d
     from scipy.spatial.transform import Rotation
 
-    shape = sim.shape
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((np.asarray(shape.vertices) * np.asarray(sim.scale)).astype(np.float32)),
-                        o3d.core.Tensor(np.asarray(shape.faces, dtype=np.uint32)))
+    from physdyn_ros.shapes.core import surface_distance as mesh_distance
+
     local = Rotation.from_quat(pose_quat).inv().apply(np.asarray(point) - pose_pos)
-    return float(scene.compute_distance(o3d.core.Tensor(local[None].astype(np.float32))).numpy()[0])
+    return float(mesh_distance(np.asarray(sim.shape.vertices) * np.asarray(sim.scale), sim.shape.faces, local)[0])
 
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,

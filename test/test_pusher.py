@@ -33,16 +33,14 @@ def goal_msg(x: float, y: float, yaw: float = 0.0, **fields) -> PushToGoal.Goal:
 
 def surface_mm(sim, pose_msg, point) -> float:
     """mm from a table-frame point to the sim object's mesh posed at pose_msg."""
-    import open3d as o3d
     from scipy.spatial.transform import Rotation
 
+    from physdyn_ros.shapes.core import surface_distance
+
     shape, scale = sim.sim.shape, np.asarray(sim.sim.scale)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor((np.asarray(shape.vertices) * scale).astype(np.float32)),
-                        o3d.core.Tensor(np.asarray(shape.faces, dtype=np.uint32)))
     p, q = pose_msg.position, pose_msg.orientation
     local = Rotation.from_quat([q.x, q.y, q.z, q.w]).inv().apply(np.asarray(point) - [p.x, p.y, p.z])
-    return 1e3 * float(scene.compute_distance(o3d.core.Tensor(local[None].astype(np.float32))).numpy()[0])
+    return 1e3 * float(surface_distance(np.asarray(shape.vertices) * scale, shape.faces, local)[0])
 
 
 class Client:

@@ -21,8 +21,8 @@ The push whose perturbed outcomes cost least on average, and whose topple probab
 mean over the push and its perturbations) stays under the limit, wins; its spread (RMS distance of the
 perturbed rest positions from the nominal one) and that probability are reported. (Requiring every perturbed
 push to stay under the limit refused 10 of 42 bench trials against 3, with as many topples: 52 % against 62 %
-within three pushes, bench_planning.py --iterations 3.) Optionally a few gradient steps through the learned model polish the
-push's velocity at the chosen contact (planning.refine).
+within three pushes, bench_planning.py --iterations 3.) Optionally a few gradient steps through the learned
+model polish the push's velocity at the chosen contact (planning.refine).
 
 Cost of a candidate (lower is better), from its predicted final state:
     (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)

@@ -88,6 +88,18 @@ def _o3d_mesh(vertices: np.ndarray, faces: np.ndarray):
                                      o3d.utility.Vector3iVector(np.asarray(faces, dtype=np.int32)))
 
 
+def surface_distance(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance (m) from each of `points` (N, 3) to the surface of the mesh (open3d's raycasting scene); used to
+    check that a planned contact point lies on an object."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)))
+    query = o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))
+    return scene.compute_distance(query).numpy().astype(np.float64)
+
+
 def convex_hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Convex hull (vertices, outward faces) of a point set, via open3d's qhull."""
     import open3d as o3d
