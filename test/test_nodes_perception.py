@@ -2,6 +2,7 @@
 markers, speed, and clouds it must refuse without dying."""
 from __future__ import annotations
 
+import math
 import sys
 import time
 import types
@@ -449,4 +450,7 @@ def test_the_predictor_addresses_any_tracked_object(rclpy_init, tiny_model):
     traj, f = trajs[-1], feats[target]
     assert traj.object_id == target
     p = traj.states[0].pose.position
-    assert (p.x, p.y) == pytest.approx((f.centroid.x, f.centroid.y), abs=1e-6)  # started from that object
+    # started from that object: its centroid (a re-sent cloud's feature differs by the segmentation's sampling,
+    # millimetres), nearer to it than to any other object's
+    gaps = {oid: math.hypot(p.x - g.centroid.x, p.y - g.centroid.y) for oid, g in feats.items()}
+    assert gaps[target] < 0.01 and min(gaps, key=gaps.get) == target, gaps

@@ -275,7 +275,8 @@ class PerceptionNode(ManagedNode):
         if n <= 0:
             return PointCloud2()
         if len(points) > n:
-            points = points[np.sort(self._rng.choice(len(points), n, replace=False))]
+            # a generator of its own: the segmentation's stream (self._rng) stays as it was without this step
+            points = points[np.sort(np.random.default_rng(0).choice(len(points), n, replace=False))]
         return xyz_to_cloud(points, header.frame_id, header.stamp)
 
     def markers(self, header: Header, labelled) -> MarkerArray:
