@@ -33,6 +33,7 @@ from ..conventions import TABLE_FRAME
 from ..msg import ShapeFeature
 from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
+from ..perception.scene import random_rows
 from ..ros.cloud import cloud_size, cloud_to_xyz, xyz_to_cloud
 from ..ros.convert import point, time_to_ns, vector3
 from ..ros.model import load_predictor
@@ -274,10 +275,8 @@ class PerceptionNode(ManagedNode):
         n = int(self.get_parameter("feature_points").value)
         if n <= 0:
             return PointCloud2()
-        if len(points) > n:
-            # a generator of its own: the segmentation's stream (self._rng) stays as it was without this step
-            points = points[np.sort(np.random.default_rng(0).choice(len(points), n, replace=False))]
-        return xyz_to_cloud(points, header.frame_id, header.stamp)
+        # a generator of its own: the segmentation's stream (self._rng) stays as it was without this step
+        return xyz_to_cloud(random_rows(points, n, np.random.default_rng(0)), header.frame_id, header.stamp)
 
     def markers(self, header: Header, labelled) -> MarkerArray:
         """DELETEALL, then per object a LINE_STRIP of its x-y convex hull on the table (z = 0, ns object_outline)

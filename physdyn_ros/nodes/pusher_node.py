@@ -76,7 +76,7 @@ class PusherNode(ManagedNode):
                                    read_only=True)
         declare(self, "position_tolerance", 0.02, "m, default position tolerance of a goal", low=1e-4)
         declare(self, "yaw_tolerance", 0.1745, "rad, default yaw tolerance (>= pi: any yaw)", low=1e-4)
-        declare(self, "max_pushes", 3, "default pushes per goal", low=1, high=50)
+        declare(self, "max_pushes", 3, "default pushes per goal", low=1, high=MAX_PUSHES)
         declare(self, "adapt", True, "aim each push by the observed / predicted slide ratio of the pushes before")
         declare(self, "steps_in", 3, "observed states fed to the model to re-predict the rest pose (0 = off)",
                 low=0, high=30)

@@ -36,6 +36,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .. import geometry as geo
 from ..conventions import GRAVITY
+from ..perception.scene import random_rows
 from ..shapes.core import DEFAULT_DENSITY, convex_hull, mass_properties
 
 #: Points kept for contact search (a random subset of larger clouds: the cost is candidates x points).
@@ -169,9 +170,7 @@ def hull_2d(points: np.ndarray) -> np.ndarray:
 
 def _contact_points(points: np.ndarray, seed: int = 0) -> tuple[np.ndarray, float]:
     """At most MAX_CONTACT_POINTS of `points` and the tube half width from their median spacing."""
-    if len(points) > MAX_CONTACT_POINTS:
-        keep = np.random.default_rng(seed).choice(len(points), MAX_CONTACT_POINTS, replace=False)
-        points = points[np.sort(keep)]
+    points = random_rows(points, MAX_CONTACT_POINTS, np.random.default_rng(seed))
     dist, _ = cKDTree(points).query(points, k=2)
     spacing = float(np.median(dist[:, 1]))
     return points, float(np.clip(spacing, *TUBE_RANGE))
