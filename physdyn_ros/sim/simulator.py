@@ -1,8 +1,8 @@
-"""THE simulation core: one rigid object on a static plane, pybullet in DIRECT mode.
+"""THE simulation core: rigid objects on a static plane, pybullet in DIRECT mode.
 
-Used by dataset generation (`simulate_push`), by the physics baselines / planner (`simulate_from_state`) and by
-the ROS sim node (`Simulator`). World: z up, plane z = 0, gravity -z. Physics runs at `SimConfig.physics_hz`
-and states are recorded every DT = 1/15 s.
+Used by dataset generation (`simulate_push`, one object per world), by the physics baselines / planner
+(`simulate_from_state`) and by the ROS sim node (`Simulator`, several objects keyed by id in one world).
+World: z up, plane z = 0, gravity -z. Physics runs at `SimConfig.physics_hz` and states are recorded every DT = 1/15 s.
 
 Physics choices (all in `SimConfig`, so they are recorded in every dataset manifest):
 * Friction: Bullet combines the lateral friction of two bodies as the PRODUCT, so the plane has friction 1.0
@@ -196,8 +196,38 @@ def convex_decomposition(shape: Shape, config: SimConfig = SimConfig()) -> Path:
 
 
 # ------------------------------------------------------------------------------------------------- the simulator
+#: The id of the object of the single-object API (spawn without an object_id).
+DEFAULT_ID = "object"
+#: m: two objects whose collision shapes interpenetrate by more than this at spawn overlap (Bullet's ~1 mm hull
+#: margins make touching objects read a fraction of a millimetre of penetration).
+OVERLAP_TOLERANCE = 0.002
+
+
+@dataclass
+class Body:
+    """One object in the world: its pybullet body and the physical properties derived from its geometry."""
+
+    uid: int  # pybullet body unique id
+    shape: Shape
+    scale: np.ndarray
+    friction: float
+    mass: float
+    inertia: np.ndarray  # object frame, about the origin (= COM)
+    principal_moments: np.ndarray
+    q_inertial: np.ndarray  # object <- inertial (principal) frame, x y z w
+    r_inertial: Rotation  # the same as a scipy Rotation
+    to_object: np.ndarray  # q_world_object = to_object @ q_world_inertial (see Simulator.state)
+
+
 class Simulator:
-    """One pybullet DIRECT world holding a static plane and (at most) one object.
+    """One pybullet DIRECT world holding a static plane and objects keyed by an id, all stepped together.
+
+    Single-object use (data generation, re-simulation, the planner): `spawn(shape, ...)` without an object_id
+    rebuilds the world with that one object (id DEFAULT_ID), and every method called without an object_id acts
+    on the only object. Several objects (the sim node): `spawn(..., object_id=name)` adds a body to the current
+    world, or replaces the body of that id, and refuses a pose that overlaps another object; methods then take the
+    object_id, and step() / states() advance and read them all. Objects collide with each other; Bullet combines
+    their frictions as the product (mu_a * mu_b against each other, mu against the plane).
 
     The object frame is the Shape's (origin = COM, z = up); every pose and velocity in and out is the object
     frame's, in the world frame: pos (3,), quat (x, y, z, w), linear and angular velocity (world).
@@ -211,16 +241,7 @@ class Simulator:
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self.config = config
         self._p = pybullet
-        self.body: int | None = None
-        self.shape: Shape | None = None
-        self.scale = np.ones(3)
-        self.friction = config.friction
-        self.mass = 0.0
-        self.inertia = np.zeros((3, 3))  # object frame, about the origin (= COM)
-        self.principal_moments = np.zeros(3)
-        self._q_inertial = np.array([0.0, 0.0, 0.0, 1.0])  # object <- inertial (principal) frame
-        self._r_inertial = Rotation.identity()  # the same as a scipy Rotation
-        self._to_object = np.eye(4)  # q_world_object = _to_object @ q_world_inertial (see state())
+        self.bodies: dict[str, Body] = {}  # in spawn order
         self._reset_world()
 
     # -- world -----------------------------------------------------------------------------------------------
@@ -235,7 +256,7 @@ class Simulator:
         self.plane = c.createMultiBody(0, plane)
         c.changeDynamics(self.plane, -1, lateralFriction=cfg.plane_friction, rollingFriction=0.0,
                          spinningFriction=0.0, restitution=1.0)  # restitution combines as a product too
-        self.body = None
+        self.bodies = {}
 
     def close(self) -> None:
         """Disconnect from pybullet (idempotent)."""
@@ -245,7 +266,7 @@ class Simulator:
             except Exception:  # noqa: BLE001 - already disconnected
                 pass
             self.client = None
-            self.body = None
+            self.bodies = {}
 
     def __enter__(self) -> "Simulator":
         return self
@@ -255,6 +276,71 @@ class Simulator:
 
     def __del__(self) -> None:
         self.close()
+
+    # -- objects by id -----------------------------------------------------------------------------------------
+    @property
+    def ids(self) -> list[str]:
+        """The ids of the objects in the world, in spawn order."""
+        return list(self.bodies)
+
+    def get(self, object_id: str | None = None) -> Body:
+        """The object `object_id`, or (None) the only object; ValueError / RuntimeError naming what is there."""
+        if object_id is not None:
+            try:
+                return self.bodies[object_id]
+            except KeyError:
+                known = ", ".join(repr(k) for k in self.bodies) or "none"
+                raise ValueError(f"unknown object_id {object_id!r} (objects: {known})") from None
+        if len(self.bodies) == 1:
+            return next(iter(self.bodies.values()))
+        if not self.bodies:
+            raise RuntimeError("no object in the simulator: call spawn() first")
+        raise RuntimeError(f"{len(self.bodies)} objects in the simulator ({', '.join(self.bodies)}): name one")
+
+    def _sole(self) -> Body | None:
+        """The only object (None when there is none): the single-object properties below read it."""
+        return self.get() if self.bodies else None
+
+    # The single-object API: the only object's properties (None / zeros when there is no object).
+    @property
+    def body(self) -> int | None:
+        b = self._sole()
+        return None if b is None else b.uid
+
+    @property
+    def shape(self) -> Shape | None:
+        b = self._sole()
+        return None if b is None else b.shape
+
+    @property
+    def scale(self) -> np.ndarray:
+        b = self._sole()
+        return np.ones(3) if b is None else b.scale
+
+    @property
+    def friction(self) -> float:
+        b = self._sole()
+        return self.config.friction if b is None else b.friction
+
+    @property
+    def mass(self) -> float:
+        b = self._sole()
+        return 0.0 if b is None else b.mass
+
+    @property
+    def inertia(self) -> np.ndarray:
+        b = self._sole()
+        return np.zeros((3, 3)) if b is None else b.inertia
+
+    @property
+    def principal_moments(self) -> np.ndarray:
+        b = self._sole()
+        return np.zeros(3) if b is None else b.principal_moments
+
+    @property
+    def _q_inertial(self) -> np.ndarray:  # object <- inertial (principal) frame; read by tests
+        b = self._sole()
+        return np.array([0.0, 0.0, 0.0, 1.0]) if b is None else b.q_inertial
 
     # -- object ----------------------------------------------------------------------------------------------
     def _collision_shape(self, shape: Shape, scale: np.ndarray) -> int:
@@ -267,11 +353,14 @@ class Simulator:
         return c.createCollisionShape(p.GEOM_MESH, fileName=str(path), meshScale=scale.tolist())
 
     def spawn(self, shape: Shape, scale=(1.0, 1.0, 1.0), xy=(0.0, 0.0), yaw: float = 0.0,
-              friction: float | None = None, settle: bool = True) -> None:
+              friction: float | None = None, settle: bool = True, object_id: str | None = None) -> None:
         """Put `shape` (scaled per object axis) upright on the plane at `xy` with heading `yaw`, settled at rest.
 
-        Replaces any previous object (the world is rebuilt). `friction` is the effective Coulomb coefficient
-        (default: config.friction).
+        `object_id` None: the world is rebuilt with this one object (id DEFAULT_ID), so a simulation depends on
+        its inputs only. `object_id` given: the object is added to the current world, replacing the object of
+        that id; a pose that overlaps another object raises ValueError and leaves the world as it was. Settling
+        steps the whole world. `friction` is the effective Coulomb coefficient with the plane (default:
+        config.friction).
         """
         if self.client is None:
             raise RuntimeError("simulator is closed")
@@ -281,15 +370,57 @@ class Simulator:
         mu = self.config.friction if friction is None else float(friction)
         if not 0 <= mu <= 10:
             raise ValueError(f"friction must be in [0, 10], got {mu}")
-        self._reset_world()
+        if object_id is not None and (not isinstance(object_id, str) or not object_id):
+            raise ValueError(f"object_id must be a non-empty string, got {object_id!r}")
+        if object_id is None:
+            self._reset_world()
+            object_id = DEFAULT_ID
         mp = shape.mass_properties(scale, self.config.density)
-        self._set_body(shape, scale, mp, mu)
-        z0 = -float((shape.vertices[:, 2] * scale[2]).min()) + self.config.spawn_clearance
-        self.set_pose(np.array([xy[0], xy[1], z0]), yaw_quat(yaw))
+        body = self._make_body(shape, scale, mp, mu)
+        self._pose_body(body, self._upright_position(body, xy), yaw_quat(yaw))
+        others = {k: b for k, b in self.bodies.items() if k != object_id}
+        hits = self._overlaps(body, others) if others else {}
+        if hits:
+            self.client.removeBody(body.uid)
+            raise ValueError(f"{object_id!r} at ({float(xy[0]):.3f}, {float(xy[1]):.3f}) m would overlap "
+                             + ", ".join(f"{k!r} (by {1e3 * d:.0f} mm)" for k, d in hits.items())
+                             + ": spawn it elsewhere or move the other object first")
+        old = self.bodies.pop(object_id, None)
+        if old is not None:
+            self.client.removeBody(old.uid)
+        self.bodies[object_id] = body
         if settle:
-            self._settle()
+            self._settle(body)
 
-    def _set_body(self, shape: Shape, scale: np.ndarray, mp, mu: float) -> None:
+    def _upright_position(self, body: Body, xy) -> np.ndarray:
+        z0 = -float((body.shape.vertices[:, 2] * body.scale[2]).min()) + self.config.spawn_clearance
+        return np.array([xy[0], xy[1], z0], dtype=np.float64)
+
+    def place(self, object_id: str | None, xy, yaw: float = 0.0, settle: bool = True) -> None:
+        """Teleport an object upright onto the plane at `xy`, heading `yaw`, at rest (settled unless not
+        `settle`). No overlap test: see overlaps()."""
+        body = self.get(object_id)
+        self._pose_body(body, self._upright_position(body, xy), yaw_quat(yaw))
+        self.client.resetBaseVelocity(body.uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+        if settle:
+            self._settle(body)
+
+    def overlaps(self, object_id: str | None = None) -> dict[str, float]:
+        """The objects that the object interpenetrates by more than OVERLAP_TOLERANCE: id -> depth, m."""
+        body = self.get(object_id)
+        return self._overlaps(body, {k: b for k, b in self.bodies.items() if b is not body})
+
+    def _overlaps(self, body: Body, others: dict[str, Body]) -> dict[str, float]:
+        out = {}
+        for k, other in others.items():
+            # closest points within 0 m: the contact points, with negative distances = penetration depths
+            pts = self.client.getClosestPoints(body.uid, other.uid, 0.0)
+            depth = max((-p[8] for p in pts), default=0.0)
+            if depth > OVERLAP_TOLERANCE:
+                out[k] = float(depth)
+        return out
+
+    def _make_body(self, shape: Shape, scale: np.ndarray, mp, mu: float) -> Body:
         c, cfg = self.client, self.config
         # Inertia about the object origin (the COM for Shapes; parallel-axis shift for clouds whose origin is
         # the given COM while the hull's centroid is elsewhere).
@@ -305,107 +436,121 @@ class Simulator:
         else:
             q_in = matrix_to_quat(axes)
         cs = self._collision_shape(shape, scale)
-        self.body = c.createMultiBody(baseMass=mp.mass, baseCollisionShapeIndex=cs,
-                                      baseInertialFramePosition=[0, 0, 0],
-                                      baseInertialFrameOrientation=q_in.tolist())
-        c.changeDynamics(self.body, -1, mass=mp.mass, localInertiaDiagonal=moments.tolist(), lateralFriction=mu,
+        uid = c.createMultiBody(baseMass=mp.mass, baseCollisionShapeIndex=cs, baseInertialFramePosition=[0, 0, 0],
+                                baseInertialFrameOrientation=q_in.tolist())
+        c.changeDynamics(uid, -1, mass=mp.mass, localInertiaDiagonal=moments.tolist(), lateralFriction=mu,
                          rollingFriction=cfg.rolling_friction, spinningFriction=cfg.spinning_friction,
                          restitution=cfg.restitution, linearDamping=cfg.linear_damping,
                          angularDamping=cfg.angular_damping,
                          activationState=self._p.ACTIVATION_STATE_DISABLE_SLEEPING)
-        self.shape, self.scale, self.friction = shape, scale, mu
-        self.mass, self.inertia, self.principal_moments, self._q_inertial = mp.mass, inertia, moments, q_in
-        self._r_inertial = Rotation.from_quat(q_in)
+        r_in = Rotation.from_quat(q_in)
         # q * q_in^-1 is linear in q: its 4x4 matrix, column j = e_j * q_in^-1 (scipy's product of the basis
         # quaternions). state() runs every frame: a matrix-vector product there costs ~8 us, a scipy Rotation
         # product ~80 us (its per-call overhead; the old hand-written product took ~12 us).
-        inv = self._r_inertial.inv()
-        self._to_object = np.stack([(Rotation.from_quat(e) * inv).as_quat() for e in np.eye(4)], axis=1)
+        inv = r_in.inv()
+        to_object = np.stack([(Rotation.from_quat(e) * inv).as_quat() for e in np.eye(4)], axis=1)
+        return Body(uid=uid, shape=shape, scale=scale, friction=mu, mass=mp.mass, inertia=inertia,
+                    principal_moments=moments, q_inertial=q_in, r_inertial=r_in, to_object=to_object)
 
-    def _settle(self) -> None:
+    def _settle(self, body: Body) -> None:
         cfg = self.config
         quiet = 0
         for _ in range(int(round(cfg.settle_time / DT))):
-            self.step_frame()
-            _, _, v, w = self.state()
+            self.step()
+            _, _, v, w = self._state(body)
             quiet = quiet + 1 if (np.linalg.norm(v) < cfg.rest_lin_vel * 0.2
                                   and np.linalg.norm(w) < cfg.rest_ang_vel * 0.2) else 0
             if quiet >= 2:
                 break
-        self.set_velocity(np.zeros(3), np.zeros(3))
+        self.client.resetBaseVelocity(body.uid, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
 
-    def remove(self) -> None:
-        """Remove the object (the plane stays)."""
-        if self.body is not None:
-            self.client.removeBody(self.body)
-            self.body = None
-            self.shape = None
+    def remove(self, object_id: str | None = None) -> None:
+        """Remove the object `object_id` (ValueError if unknown), or (None) every object; the plane stays."""
+        if object_id is not None:
+            self.get(object_id)
+        for k in [object_id] if object_id is not None else list(self.bodies):
+            self.client.removeBody(self.bodies.pop(k).uid)
 
-    def _require_body(self) -> int:
-        if self.body is None:
-            raise RuntimeError("no object in the simulator: call spawn() first")
-        return self.body
+    def _require_body(self, object_id: str | None = None) -> int:
+        return self.get(object_id).uid
 
     # -- state -----------------------------------------------------------------------------------------------
-    def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(pos (3,), quat xyzw (4,), lin_vel world (3,), ang_vel world (3,)) of the object frame."""
-        b = self._require_body()
-        pos, q_world_inertial = self.client.getBasePositionAndOrientation(b)
-        lin, ang = self.client.getBaseVelocity(b)
-        q = self._to_object @ np.asarray(q_world_inertial)
+    def _state(self, b: Body) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        pos, q_world_inertial = self.client.getBasePositionAndOrientation(b.uid)
+        lin, ang = self.client.getBaseVelocity(b.uid)
+        q = b.to_object @ np.asarray(q_world_inertial)
         q = q / np.linalg.norm(q)
         if q[3] < 0:  # canonical sign (w >= 0) for stable stored data
             q = -q
         return np.asarray(pos), q, np.asarray(lin), np.asarray(ang)
 
-    def set_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
-        """Teleport the object frame to `pos`, `quat` (x, y, z, w)."""
-        b = self._require_body()
-        q = Rotation.from_quat(np.asarray(quat, dtype=np.float64)) * self._r_inertial
-        self.client.resetBasePositionAndOrientation(b, np.asarray(pos, dtype=np.float64).tolist(),
+    def state(self, object_id: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(pos (3,), quat xyzw (4,), lin_vel world (3,), ang_vel world (3,)) of the object frame."""
+        return self._state(self.get(object_id))
+
+    def states(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """state() of every object, by id in spawn order."""
+        return {k: self._state(b) for k, b in self.bodies.items()}
+
+    def _pose_body(self, b: Body, pos: np.ndarray, quat: np.ndarray) -> None:
+        q = Rotation.from_quat(np.asarray(quat, dtype=np.float64)) * b.r_inertial
+        self.client.resetBasePositionAndOrientation(b.uid, np.asarray(pos, dtype=np.float64).tolist(),
                                                     q.as_quat().tolist())
 
-    def set_velocity(self, lin_world: np.ndarray, ang_world: np.ndarray) -> None:
+    def set_pose(self, pos: np.ndarray, quat: np.ndarray, object_id: str | None = None) -> None:
+        """Teleport the object frame to `pos`, `quat` (x, y, z, w)."""
+        self._pose_body(self.get(object_id), pos, quat)
+
+    def set_velocity(self, lin_world: np.ndarray, ang_world: np.ndarray, object_id: str | None = None) -> None:
         """Set the COM linear velocity and the angular velocity (world frame)."""
-        self.client.resetBaseVelocity(self._require_body(), np.asarray(lin_world, float).tolist(),
+        self.client.resetBaseVelocity(self.get(object_id).uid, np.asarray(lin_world, float).tolist(),
                                       np.asarray(ang_world, float).tolist())
 
-    def apply_impulse(self, impulse_world: np.ndarray, point_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def apply_impulse(self, impulse_world: np.ndarray, point_world: np.ndarray,
+                      object_id: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Apply an instantaneous impulse (N s, world) at a world point: dv = J / m, dw = I_w^-1 (r x J).
 
         Contacts respond in the next physics step. Returns the new (lin_vel, ang_vel).
         """
+        b = self.get(object_id)
         j = np.asarray(impulse_world, dtype=np.float64).reshape(3)
-        pos, q, v, w = self.state()
+        pos, q, v, w = self._state(b)
         r = np.asarray(point_world, dtype=np.float64).reshape(3) - pos
         rot = quat_to_matrix(q)
-        inertia_world = rot @ self.inertia @ rot.T
-        v = v + j / self.mass
+        inertia_world = rot @ b.inertia @ rot.T
+        v = v + j / b.mass
         w = w + np.linalg.solve(inertia_world, np.cross(r, j))
-        self.set_velocity(v, w)
+        self.client.resetBaseVelocity(b.uid, v.tolist(), w.tolist())
         return v, w
 
-    def step_frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Advance DT (config.substeps physics steps) and return the new state."""
-        self._require_body()
+    def step(self) -> None:
+        """Advance every object by DT (config.substeps physics steps)."""
+        if self.client is None:
+            raise RuntimeError("simulator is closed")
         for _ in range(self.config.substeps):
             self.client.stepSimulation()
-        return self.state()
 
-    def ray_test(self, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """First hit of the segment start->end on the object: (point, normal) in the world, or None."""
-        b = self._require_body()
+    def step_frame(self, object_id: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the world by DT (every object moves) and return the new state of the object."""
+        b = self.get(object_id)  # refuse an unknown / ambiguous object before stepping
+        self.step()
+        return self._state(b)
+
+    def ray_test(self, start: np.ndarray, end: np.ndarray,
+                 object_id: str | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        """First hit of the segment start->end on the object: (point, normal) in the world, or None (also when
+        another object is hit first)."""
+        b = self.get(object_id).uid
         hit = self.client.rayTest(np.asarray(start, float).tolist(), np.asarray(end, float).tolist())[0]
         if hit[0] != b:
             return None
         return np.asarray(hit[3]), np.asarray(hit[4])
 
-    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+    def aabb(self, object_id: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Tight world-frame bounds (min, max) of the object's scaled convex hull at its current pose.
 
         (pybullet's getAABB is looser: it bounds the rotated local box and adds the collision margin.)"""
-        self._require_body()
-        assert self.shape is not None  # set together with the body
-        pos, q, _, _ = self.state()
-        pts = (self.shape.hull()[0] * self.scale) @ quat_to_matrix(q).T + pos
+        b = self.get(object_id)
+        pos, q, _, _ = self._state(b)
+        pts = (b.shape.hull()[0] * b.scale) @ quat_to_matrix(q).T + pos
         return pts.min(0), pts.max(0)
