@@ -43,6 +43,57 @@ def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=Non
                                           prior, fast["in"], fast["out"])
 
 
+def previous_numpy_rollout(x0, x_obs, w0, w, w_head, steps, prior=None):
+    """_numpy_lstm_rollout before issue 13's re-measurement (8 numpy calls per layer and step, out= keywords): the
+    reference for the current batch-1 kernel, which must give the same numbers bit for bit."""
+    from physdyn_ros.learn.prior import prior_into
+
+    layers = len(w) + 1
+    hidden = w0.shape[1] // 4
+    z = np.zeros(7 + layers * (hidden + 1) - 1, np.float32)
+    z[:6] = x0
+    views = []
+    for layer in range(layers):
+        lo = 7 + layer * (hidden + 1)
+        z[lo - 1] = 1.0
+        inp = z[:lo + hidden] if layer == 0 else z[lo - hidden - 1:lo + hidden]
+        q = np.zeros(5 * hidden, np.float32)  # tanh of the gates (o, i, f, g) then the cell state c
+        # per layer: product input, weights, tanh(gates) view, (o, i, f) view, (i, f), (g, c), c, o, h slot
+        views.append((inp, w0 if layer == 0 else w[layer - 1], q[:4 * hidden], q[:3 * hidden],
+                      q[hidden:3 * hidden], q[3 * hidden:], q[4 * hidden:], q[:hidden], z[lo:lo + hidden]))
+    out = np.empty((steps, 13 + 6), np.float32)
+    rows = list(out)
+    x = z[:6]
+    gates = np.empty(4 * hidden, np.float32)
+    prod = np.empty(2 * hidden, np.float32)
+    p_ig, p_fc = prod[:hidden], prod[hidden:]
+    tc = np.empty(hidden, np.float32)
+    one, half = np.float32(1.0), np.float32(0.5)
+    dot, tanh, add, mul, copyto = np.dot, np.tanh, np.add, np.multiply, np.copyto
+    observed = len(x_obs)
+    for t in range(steps):
+        for inp, weights, t4, u3, u_if, g_c, c, u_o, h in views:
+            dot(inp, weights, out=gates)
+            tanh(gates, out=t4)
+            add(u3, one, out=u3)  # 2 sigmoid(a) for o, i, f
+            mul(u_if, g_c, out=prod)  # (2 i tanh(g), 2 f c)
+            add(p_ig, p_fc, out=c)
+            mul(c, half, out=c)  # c <- f c + i tanh(g)
+            tanh(c, out=tc)
+            mul(u_o, tc, out=h)  # 2 o tanh(c)
+        row = rows[t]
+        dot(z, w_head, out=row)
+        if prior is not None:  # the sliding prior: on the outputs and, through the gain, on the next input
+            prior_into(row, x, prior)
+        if t < observed:
+            row[13:] = x_obs[t]
+        copyto(x, row[13:])
+    xs = np.empty((steps + 1, 6), np.float32)
+    xs[0] = x0
+    xs[1:] = out[:, 13:]
+    return out[:, :13], xs
+
+
 def close(new: torch.Tensor, ref: torch.Tensor, rel: float = REL) -> bool:
     err = (new - ref).abs().max().item()
     return err <= rel * max(ref.abs().max().item(), 1.0)
@@ -207,3 +258,35 @@ def test_compose_rotations_equals_integrate_in_world(batch):
     got = compose_rotations(q0, d_rot)
     assert got.shape == (batch, 62, 4) and np.allclose(np.linalg.norm(got, axis=-1), 1.0)
     assert np.abs(got - ref).max() < 1e-12  # both have w >= 0
+
+
+@pytest.mark.parametrize("observed", [False, True])
+def test_batch1_numpy_kernel_equals_its_previous_version_bit_for_bit(shipped, pushes, observed):
+    """The batch-1 kernel's rewrite (issue 13: 7 numpy calls per layer, the sliding prior's constants in numpy) is a
+    speed-up only: the same float32 numbers as the kernel before it, for every push of the fixture."""
+    from physdyn_ros.learn.prior import prior_constants
+
+    m = shipped._model
+    feature, v, w, obs_v, obs_w = pushes
+    with torch.inference_mode():
+        kernel = m._kernel(m._fast())
+        prior = torch.stack(m._prior_decel(feature), -1).numpy()
+    scale_in = kernel["np_in"]
+    for i in range(0, 300, 7):
+        x0 = (torch.cat([v[i], w[i]]).numpy() / scale_in).astype(np.float32)
+        x_obs = (torch.cat([obs_v[i], obs_w[i]], -1).numpy() / scale_in).astype(np.float32) if observed \
+            else np.zeros((0, 6), np.float32)
+        w0 = kernel["np_w0"].copy()
+        w0[6] = feature[i].numpy() @ kernel["np_w_feature"] + kernel["np_b0"]
+        args = prior_constants(prior[i, 0], prior[i, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"])
+        ref = previous_numpy_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
+        got = model_module._numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
+        assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1]), i
+        # the Predictor's entry point: the prior's constants now computed in numpy, the same numbers
+        arr_raw, arr_xs, _ = m.rollout_arrays(feature[i:i + 1].numpy(), v[i:i + 1].numpy(), w[i:i + 1].numpy(), 60,
+                                              *((obs_v[i:i + 1].numpy(), obs_w[i:i + 1].numpy()) if observed
+                                                else (None, None)))
+        with torch.inference_mode():
+            ref_raw, ref_xs = m.rollout_raw(feature[i:i + 1], v[i:i + 1], w[i:i + 1], 60,
+                                            *((obs_v[i:i + 1], obs_w[i:i + 1]) if observed else (None, None)))
+        assert np.array_equal(arr_raw, ref_raw.numpy()) and np.array_equal(arr_xs, ref_xs.numpy()), i
