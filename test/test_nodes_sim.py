@@ -145,10 +145,15 @@ def test_spawn_object_service(rclpy_init, tmp_path):
         assert res.success, res.message
         assert (res.half_extents.x, res.half_extents.y, res.half_extents.z) == pytest.approx((0.05, 0.03, 0.02))
         assert res.mass == pytest.approx(500.0 * 0.1 * 0.06 * 0.04, rel=1e-3)
-        assert wait_for(lambda: rec.states and rec.states[-1].object_id == "crate", 5)
-        assert rec.states[-1].pose.position.x == pytest.approx(0.2, abs=2e-3)
+        assert wait_for(lambda: any(s.object_id == "crate" for s in rec.states), 5)
+        crate = [s for s in rec.states if s.object_id == "crate"][-1]
+        assert crate.pose.position.x == pytest.approx(0.2, abs=2e-3)
+        assert sim.sim.ids == ["object", "crate"]  # a new id adds an object next to the start one
+        # an empty object_id is the object_id parameter's object: replaced by the new shape
         pb = call(rec.spawn, SpawnObject.Request(category="pybullet_data", shape_seed=0))
         assert pb.success and "pybullet_data" in pb.message, pb.message
+        assert sim.sim.ids == ["crate", "object"] and "pybullet_data" in sim.sim.get("object").shape.name
+        call(rec.spawn, SpawnObject.Request(category="remove", object_id="crate"))
         # issue 14.3: scale 1000 made a box of 494,000 t; the object in place is kept
         kept = sim.sim.shape.name
         huge = SpawnObject.Request(category="box")
@@ -158,9 +163,12 @@ def test_spawn_object_service(rclpy_init, tmp_path):
         flat = SpawnObject.Request(category="box")
         flat.scale.x, flat.scale.y, flat.scale.z = 1.0, 1.0, 1e-4
         assert "must measure" in call(rec.spawn, flat).message
-        assert sim.sim.shape.name == kept
-        # the push names the current object
-        assert not call(rec.push, push_request(impulse=(0.01, 0, 0), object_id="crate")).success
+        assert sim.sim.shape.name == kept and sim.sim.ids == ["object"]
+        # the removed object is gone: pushing or removing it again is refused with the objects there are
+        gone = call(rec.push, push_request(impulse=(0.01, 0, 0), object_id="crate"))
+        assert not gone.success and "unknown object_id 'crate' (objects: 'object')" in gone.message
+        again = call(rec.spawn, SpawnObject.Request(category="remove", object_id="crate"))
+        assert not again.success and "unknown object_id 'crate'" in again.message
 
 
 def test_bad_start_parameters_stop_the_node(rclpy_init):
@@ -176,10 +184,10 @@ def test_cloud_is_the_posed_object_surface(rclpy_init, source):
         assert wait_for(lambda: rec.clouds, 10), "no cloud"
         msg = rec.clouds[-1]
         pos, q, _, _ = sim.sim.state()
+        half = sim.half_extents()  # the simulator closes with the node
     assert msg.header.frame_id == "world"
     pts = cloud_to_xyz(msg)
     local = (pts - pos) @ quat_to_matrix(q)  # into the object frame
-    half = sim.half_extents()
     # every point lies on one face of the box (within the depth-buffer resolution for the camera)
     dist = np.abs(np.abs(local) - half).min(axis=1)
     assert np.all(np.abs(local) <= half + 3e-3)
@@ -224,3 +232,98 @@ def test_sim_and_perception_publish_diagnostics(rclpy_init, tiny_model):
     assert values["refusals"] == "1" and values["object_id"] == sim.object_id
     perc = {kv.key: kv.value for kv in got["perception: clouds"].values}
     assert perc["model_id"] == perception.predictor.model_id and int(perc["features"]) >= 1
+
+
+def test_bad_objects_entry_stops_the_node(rclpy_init):
+    with pytest.raises(ValueError, match="objects entry 'category=box x=0.3' has no id=NAME"):
+        sim_node(objects=["category=box x=0.3"])
+    with pytest.raises(ValueError, match="'colour=red' is not one of id=, category="):
+        sim_node(objects=["id=a colour=red"])
+    with pytest.raises(ValueError, match="'b' at .* would overlap 'object'"):
+        sim_node(objects=["id=b x=0.01"])
+
+
+def test_several_objects_tracked_pushed_by_id_and_refusals(rclpy_init, tiny_model):
+    """Issue 12: a table with three objects (two from the parameters, one spawned by the service):
+    perception gives a feature per object at its centroid; a push by id moves that object only and the tracked
+    ids stay; an unknown id and an overlapping spawn are refused with the reason."""
+    from physdyn_ros.msg import ShapeFeature
+    from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
+
+    sim = sim_node(real_time_factor=0.0, publish_cloud_rate=10.0, category="box",
+                   objects=["", "id=can category=cylinder shape_seed=2 x=0.3 y=-0.05 yaw=0.3"])
+    perception = PerceptionNode(parameter_overrides=[Parameter("model_path", value=str(tiny_model)),
+                                                     Parameter("single_object", value=False)])
+    rec = Recorder(rclpy_init)
+    feats: list[ShapeFeature] = []
+    rec.node.create_subscription(ShapeFeature, "shape_feature", feats.append, FEATURE_QOS)
+
+    def tracked(after_ns: int) -> dict[str, dict[str, float]]:
+        """{sim id: {tracked id: centroid distance}} of the newest cloud stamp with a feature per object."""
+        stamps = sorted({time_to_ns(f.header.stamp) for f in list(feats) if time_to_ns(f.header.stamp) > after_ns})
+        for t in reversed(stamps):
+            at = [f for f in list(feats) if time_to_ns(f.header.stamp) == t]
+            if len(at) == len(sim.sim.ids):
+                out: dict[str, dict[str, float]] = {}
+                for oid, (pos, *_) in sim.sim.states().items():
+                    dist = {f.object_id: float(np.hypot(f.centroid.x - pos[0], f.centroid.y - pos[1])) for f in at}
+                    out[oid] = dist
+                return out
+        return {}
+
+    with Spinner(sim, perception, rec.node, threads=6):
+        assert sim.sim.ids == ["object", "can"]
+        third = call(rec.spawn, SpawnObject.Request(object_id="third", category="box", shape_seed=3, x=-0.05,
+                                                    y=0.35, yaw=1.2))
+        assert third.success and "3 objects" in third.message, third.message
+        assert sim.sim.ids == ["object", "can", "third"]
+        t_spawn = sim._sim_ns
+        # every object is in the cloud and gets a feature at its centre (within 1 cm)
+        assert wait_for(lambda: tracked(t_spawn), 20), (perception.last_error, len(feats))
+        assert wait_for(lambda: len(cloud_to_xyz(rec.clouds[-1])) == 3 * 1024 if rec.clouds else False, 5)
+        match = tracked(t_spawn)
+        ids = {oid: min(d, key=d.get) for oid, d in match.items()}
+        assert len(set(ids.values())) == 3, match
+        for oid, d in match.items():
+            assert d[ids[oid]] < 0.01, (oid, d)
+        # one state per object on object_state and odom
+        assert wait_for(lambda: {s.object_id for s in rec.states[-6:]} == {"object", "can", "third"}, 5)
+        assert {o.child_frame_id for o in rec.odom[-6:]} == {"object", "can", "third"}
+        # refusals: an unknown id, an object spawned into another; nothing moves, the node keeps serving
+        ghost = call(rec.push, push_request(impulse=(0.05, 0.0, 0.0), object_id="ghost"))
+        assert not ghost.success and "unknown object_id 'ghost' (objects: 'object', 'can', 'third')" in \
+            ghost.message
+        into = call(rec.spawn, SpawnObject.Request(object_id="fourth", category="box", x=0.3, y=-0.03))
+        assert not into.success and "'fourth' at (0.300, -0.030) m would overlap 'can'" in into.message
+        assert sim.sim.ids == ["object", "can", "third"]
+        start = {k: s[0].copy() for k, s in sim.sim.states().items()}
+        n_twists = len(rec.twists)
+        res = call(rec.push, push_request(velocity=(0.6, 0.2, 0.0, 0.0, 0.0, 0.0), object_id="can"))
+        assert res.success and "'can'" in res.message, res.message
+        assert res.initial_twist.linear.x == pytest.approx(0.6)
+        assert wait_for(lambda: len(rec.twists) > n_twists and not sim._running, 20)
+        end = {k: s[0].copy() for k, s in sim.sim.states().items()}
+        assert np.linalg.norm(end["can"][:2] - start["can"][:2]) > 0.02  # ~4 cm of Coulomb sliding
+        for k in ("object", "third"):
+            assert np.linalg.norm(end[k] - start[k]) < 0.003, (k, end[k], start[k])
+        # the pushed object's trajectory is published frame by frame under its id
+        t0 = time_to_ns(rec.twists[-1].header.stamp)
+
+        def pushed() -> list:  # the push's frames: up to the first at rest (held still: zero twist)
+            frames = [s for s in list(rec.states) if s.object_id == "can" and time_to_ns(s.header.stamp) >= t0]
+            rest = next((i for i, s in enumerate(frames) if i and s.twist.linear.x == s.twist.linear.y == 0.0), None)
+            return [] if rest is None else frames[: rest + 1]
+
+        assert wait_for(pushed, 5)
+        can = pushed()
+        steps = [round((time_to_ns(s.header.stamp) - t0) / (DT * 1e9)) for s in can]
+        assert steps == list(range(len(can))) and len(can) >= 5, steps  # every frame until it rests
+        assert can[-1].pose.position.x == pytest.approx(end["can"][0], abs=1e-6)
+        t_end = time_to_ns(can[-1].header.stamp)
+        assert wait_for(lambda: tracked(t_end), 20)
+        after = tracked(t_end)
+        for oid, d in after.items():  # the same tracked id for each object, at its new place
+            assert min(d, key=d.get) == ids[oid] and d[ids[oid]] < 0.01, (oid, d, ids)
+        # reset: all back at their spawn poses
+        assert call(rec.reset, Trigger.Request()).success
+        np.testing.assert_allclose(sim.sim.state("can")[0][:2], start["can"][:2], atol=2e-3)

@@ -1,14 +1,20 @@
-"""Simulated table: one object in pybullet (the same core as data generation), pushed through a service.
+"""Simulated table: objects in pybullet (the same core as data generation), spawned and pushed through services.
 
-Publishes the object's cloud on `cloud`, its true state on `object_state` / `odom` / `object_pose`, and the
-velocities right after a push on `initial_twist`. Every pybullet call runs in one MutuallyExclusiveCallbackGroup
-(the node's default group, which also runs the lifecycle transitions), so one thread at a time touches the
-simulator (pybullet clients are not thread-safe).
+Several objects, each under an id: the `object_id` parameter's object and the `objects` parameter's spawn at
+start, `spawn_object` adds one (or replaces the one of that id, or removes it with category "remove"), `push`
+pushes the one its object_id names. All objects share one world: a pushed object can hit the others.
+Publishes the cloud of every object on `cloud`, one true state per object on `object_state` / `odom` (the object
+id in object_id / child_frame_id), the current object's (the last spawned or pushed) on `object_pose`, and the
+pushed object's velocities right after a push on `initial_twist`. During a push the pushed object's state is
+published every simulated frame, another object's while it moves (and once as it stops), the resting ones at
+`rate`; the push ends when every object rests. Every pybullet call runs in one
+MutuallyExclusiveCallbackGroup (the node's default group, which also runs the lifecycle transitions), so one thread
+at a time touches the simulator (pybullet clients are not thread-safe).
 
 A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the pybullet simulator is created and the start
-object spawned on configure, and closed on cleanup; publishers and services exist from configure to cleanup; the
+objects spawned on configure, and closed on cleanup; publishers and services exist from configure to cleanup; the
 simulation publishes (state, cloud, clock) and pushes only while active, and a service call otherwise answers
-success=false with the lifecycle state. Deactivating during a push ends it and holds the object still.
+success=false with the lifecycle state. Deactivating during a push ends it and holds the objects still.
 With `autostart` (default) it configures and activates itself at start.
 
 The cloud is in the table frame, or (cloud_frame: camera) in the simulated camera's optical frame (REP 103: z
@@ -25,6 +31,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TwistStamped
@@ -61,10 +68,43 @@ CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=Rel
 TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOUD_FRAMES = ("table", "camera")
+#: SpawnObject.category that removes the object named object_id instead of spawning one.
+REMOVE = "remove"
+#: Keys of an `objects` parameter entry ("id=can category=cylinder x=0.25 ..."); id is required.
+OBJECT_KEYS = ("id", "category", "shape_seed", "mesh_path", "scale", "x", "y", "yaw", "friction")
+
+
+@dataclass
+class SimObject:
+    """What the node keeps per object besides the simulator's body."""
+
+    spawn_pose: tuple[float, float, float]  # x, y (m), yaw (rad): where reset puts it back
+    cloud_obj: np.ndarray  # surface samples in the object frame (cloud_source surface)
+    visual: int | None = None  # collision-free copy drawn by the simulated camera (pybullet body id)
+
+
+def parse_object_entry(entry: str, defaults: dict) -> dict:
+    """One `objects` parameter entry, "id=NAME [category=C] [shape_seed=N] [mesh_path=P] [scale=SX,SY,SZ] [x=X]
+    [y=Y] [yaw=YAW] [friction=MU]", as keyword values (missing keys from `defaults`); ValueError naming the entry."""
+    out = dict(defaults)
+    for token in entry.split():
+        key, sep, value = token.partition("=")
+        if not sep or key not in OBJECT_KEYS:
+            keys = ", ".join(k + "=" for k in OBJECT_KEYS)
+            raise ValueError(f"objects entry {entry!r}: {token!r} is not one of {keys}")
+        try:
+            out[key] = (value if key in ("id", "category", "mesh_path") else
+                        int(value) if key == "shape_seed" else
+                        [float(v) for v in value.split(",")] if key == "scale" else float(value))
+        except ValueError:
+            raise ValueError(f"objects entry {entry!r}: {key}={value!r} is not a number") from None
+    if not out.get("id"):
+        raise ValueError(f"objects entry {entry!r} has no id=NAME")
+    return out
 
 
 class SimNode(ManagedNode):
-    """Stand-in for the real table: spawn, push and watch one simulated object."""
+    """Stand-in for the real table: spawn, push and watch simulated objects."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("sim", **kwargs)
@@ -72,7 +112,8 @@ class SimNode(ManagedNode):
                                         "fixed frame of the table (z up, plane z = 0); frame_id of every output",
                                         read_only=True)
         self.default_object_id: str = declare(self, "object_id", "object",
-                                              "name of the spawned object (child_frame_id of odom)")
+                                              "name of the object spawned at start (child_frame_id of odom); the "
+                                              "id of a spawn_object request without one")
         declare(self, "category", "box", "shape category at start: box, cylinder, bottle, mug, trashcan, speaker "
                 "or pybullet_data (out-of-category meshes)")
         declare(self, "shape_seed", 0, "which shape of the category (procedural index / pybullet_data mesh index)",
@@ -81,6 +122,9 @@ class SimNode(ManagedNode):
                 "category")
         declare(self, "scale", [1.0, 1.0, 1.0], "per-axis scale of the shape (object frame)")
         declare(self, "spawn_pose", [0.0, 0.0, 0.0], "x (m), y (m), yaw (rad) of the object at spawn and reset")
+        declare(self, "objects", [""], "more objects spawned at start, one per entry: 'id=NAME category=C "
+                "shape_seed=N mesh_path=P scale=SX,SY,SZ x=X y=Y yaw=YAW friction=MU' (only id is required; the "
+                "others default to the parameters above and x = y = yaw = 0); empty entries are ignored")
         self.friction: float = declare(self, "friction", 0.5, "effective Coulomb friction coefficient with the "
                                        "table", low=0.0, high=10.0)
         declare(self, "collision", "auto", "collision geometry: 'auto' (hull for convex shapes, cached V-HACD "
@@ -121,14 +165,14 @@ class SimNode(ManagedNode):
                                            read_only=True)
 
         self.sim = None  # the pybullet Simulator: made on configure, closed on cleanup
-        self.object_id = self.default_object_id
-        self.spawn_pose = (0.0, 0.0, 0.0)
-        self._cloud_obj = np.zeros((0, 3))  # surface samples in the object frame
-        self._visual: tuple[object, int] | None = None  # (shape, body) drawn by the simulated camera
+        self.objects: dict[str, SimObject] = {}  # by id, in the simulator's (spawn) order
+        self.object_id = self.default_object_id  # the current object: the last spawned or pushed
         self._rng = np.random.default_rng(0)
         # push bookkeeping (only touched from the sim group)
         self.push_id = 0
         self._running = False
+        self._pushed = ""  # id of the object of the running push
+        self._moving: set[str] = set()  # objects that moved in the last frame of the running push
         self._frame = 0
         self._t0_ns = 0
         self._wall0 = 0.0
@@ -177,6 +221,15 @@ class SimNode(ManagedNode):
         p = self.get_parameter
         self.spawn(self.default_object_id, p("category").value, p("mesh_path").value, p("shape_seed").value,
                    p("scale").value, tuple(p("spawn_pose").value), self.friction)
+        defaults = {"category": p("category").value, "shape_seed": p("shape_seed").value,
+                    "mesh_path": p("mesh_path").value, "scale": p("scale").value, "x": 0.0, "y": 0.0, "yaw": 0.0,
+                    "friction": self.friction}
+        for entry in p("objects").value:
+            if entry.strip():
+                o = parse_object_entry(entry, defaults)
+                self.spawn(o["id"], o["category"], o["mesh_path"], o["shape_seed"], o["scale"],
+                           (o["x"], o["y"], o["yaw"]), o["friction"])
+        self.object_id = self.default_object_id
 
         self.configured_service(PushObject, "push", self._on_push, callback_group=g)
         self.configured_service(Trigger, "reset", self._on_reset, callback_group=g)
@@ -186,7 +239,7 @@ class SimNode(ManagedNode):
             self.configured_timer(1.0 / self.cloud_rate, self._on_cloud, callback_group=g)
 
     def activate(self) -> None:
-        self._publish_state(self._idle_stamp())
+        self._publish_states(self._idle_stamp())
         if self.cloud_frame == "camera":
             self._camera_pose = None  # sent (again) on /tf_static now that the publisher is enabled
             pose = self.camera_pose()
@@ -198,22 +251,26 @@ class SimNode(ManagedNode):
                 f"sensor_transform:={[round(v, 6) for v in pose.as_list()]}")
 
     def describe(self) -> str:
-        return (f"{self.object_id} ({self.sim.shape.name}, {self.sim.mass:.3f} kg) in frame "
-                f"'{self.table_frame}', real_time_factor {self.rtf:g}")
+        objects = ", ".join(f"{k} ({b.shape.name}, {b.mass:.3f} kg)" for k, b in self.sim.bodies.items())
+        return f"{objects or 'no object'} in frame '{self.table_frame}', real_time_factor {self.rtf:g}"
 
     def deactivate(self) -> None:
         if self._running:
-            self.get_logger().info(f"push {self.push_id} stopped by deactivate: the object is held still")
-            self._end_push()
-            self.sim.set_velocity(np.zeros(3), np.zeros(3))
+            self.get_logger().info(f"push {self.push_id} stopped by deactivate: the objects are held still")
+            self._hold_still()
+
+    def _hold_still(self) -> None:
+        """End a running push and stop every object where it is."""
+        self._end_push()
+        for oid in self.sim.ids:
+            self.sim.set_velocity(np.zeros(3), np.zeros(3), oid)
 
     def cleanup(self) -> None:
         self._running = False  # its timers are destroyed after this
         sim, self.sim = self.sim, None
         if sim is not None:
             sim.close()
-        self._visual = None
-        self._cloud_obj = np.zeros((0, 3))
+        self.objects = {}
         self.pub_tf_static = self.pub_clock = None
 
     def destroy_node(self) -> None:
@@ -227,10 +284,11 @@ class SimNode(ManagedNode):
             return level, "no simulator (unconfigured)", {"object_id": self.object_id, "simulator": False,
                                                           "pushes": self.push_id, "refusals": self.refused,
                                                           "last_refusal": self.last_error}
+        current = self.sim.bodies.get(self.object_id)
         return level, (f"last refusal: {self.last_error}" if level != OK else
                        "pushing" if self._running else "at rest"), {
-            "object_id": self.object_id, "simulator": True, "shape": self.sim.shape.name,
-            "mass_kg": f"{self.sim.mass:.4f}",
+            "object_id": self.object_id, "objects": ",".join(self.sim.ids), "simulator": True,
+            "shape": current.shape.name if current else "", "mass_kg": f"{current.mass:.4f}" if current else "",
             "pushes": self.push_id, "push_running": self._running, "refusals": self.refused,
             "last_refusal": self.last_error, "real_time_factor": self.rtf}
 
@@ -243,7 +301,9 @@ class SimNode(ManagedNode):
 
     def spawn(self, object_id: str, category: str, mesh_path: str, shape_seed: int, scale, spawn_pose,
               friction: float) -> None:
-        """Replace the object (raises ValueError on bad input; the previous object is kept then)."""
+        """Add the object `object_id` (empty: the object_id parameter), or replace the object of that id; raises
+        ValueError on bad input or a pose that overlaps another object (the objects are kept as they were then).
+        A running push ends first and every object is held still."""
         scale = np.asarray(scale, dtype=np.float64).reshape(-1)
         if scale.size != 3 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
             raise ValueError(f"scale must be 3 positive numbers, got {scale.tolist()}")
@@ -258,22 +318,46 @@ class SimNode(ManagedNode):
             raise ValueError(f"scale {scale.tolist()} makes {shape.name} {size[0]:.3g} x {size[1]:.3g} x "
                              f"{size[2]:.3g} m; a tabletop object must measure {MIN_OBJECT_SIZE:g}-"
                              f"{MAX_OBJECT_SIZE:g} m along each axis")
-        self._end_push()
-        self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction)
-        self._visual = None
-        self.object_id = object_id or self.default_object_id
-        self.spawn_pose = (x, y, yaw)
+        oid = object_id or self.default_object_id
+        self._hold_still()
+        self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction, object_id=oid)
+        self._drop_visual(oid)
         n = int(self.get_parameter("cloud_points").value)
         if n == len(shape.points):
             pts = shape.points.astype(np.float64)
         else:
             from ..shapes import sample_surface
             pts = sample_surface(shape.vertices, shape.faces, n, seed=0).astype(np.float64)
-        self._cloud_obj = pts * scale
-        self._publish_state(self._idle_stamp())
+        self.objects.pop(oid, None)  # a replaced object moves to the end, as in the simulator
+        self.objects[oid] = SimObject(spawn_pose=(x, y, yaw), cloud_obj=pts * scale)
+        self.object_id = oid
+        self._publish_states(self._idle_stamp())
 
-    def half_extents(self) -> np.ndarray:
-        return 0.5 * self.sim.shape.extents * self.sim.scale
+    def remove(self, object_id: str) -> None:
+        """Remove an object (ValueError naming the objects if there is none of that id)."""
+        self._hold_still()
+        self.sim.remove(object_id)
+        self._drop_visual(object_id)
+        del self.objects[object_id]
+        if self.object_id == object_id:
+            self.object_id = self.sim.ids[-1] if self.sim.ids else self.default_object_id
+
+    def _drop_visual(self, object_id: str) -> None:
+        obj = self.objects.get(object_id)
+        if obj is not None and obj.visual is not None:
+            self.sim.client.removeBody(obj.visual)
+            obj.visual = None
+
+    @property
+    def spawn_pose(self) -> tuple[float, float, float]:
+        """x (m), y (m), yaw (rad) where the current object was spawned (and reset puts it back)."""
+        obj = self.objects.get(self.object_id)
+        return obj.spawn_pose if obj is not None else (0.0, 0.0, 0.0)
+
+    def half_extents(self, object_id: str | None = None) -> np.ndarray:
+        """Half the object's (default: the current object's) scaled size along its axes, m."""
+        b = self.sim.get(object_id or self.object_id)
+        return 0.5 * b.shape.extents * b.scale
 
     # ------------------------------------------------------------------------------------------------- time
     def _idle_stamp(self) -> int:
@@ -285,36 +369,41 @@ class SimNode(ManagedNode):
         return self._sim_ns
 
     # ----------------------------------------------------------------------------------------------- outputs
-    def _publish_state(self, stamp_ns: int) -> None:
-        pos, q, v, w = self.sim.state()
+    def _publish_states(self, stamp_ns: int, ids=None) -> None:
+        """object_state and odom of the objects `ids` (default: all), object_pose of the current one."""
         stamp = ns_to_time(stamp_ns)
-        msg = object_state(self.table_frame, stamp, self.object_id, pos, q, v, w)
-        self.pub_state.publish(msg)
         header = Header(frame_id=self.table_frame, stamp=stamp)
-        self.pub_pose.publish(PoseStamped(header=header, pose=msg.pose))
-        # nav_msgs/Odometry: the twist is expressed in child_frame_id (the object's own axes).
-        rot = quat_to_matrix(q)
-        odom = Odometry(header=header, child_frame_id=self.object_id)
-        odom.pose.pose = msg.pose
-        odom.twist.twist = twist(rot.T @ v, rot.T @ w)
-        self.pub_odom.publish(odom)
+        for oid in self.sim.ids if ids is None else ids:
+            pos, q, v, w = self.sim.state(oid)
+            msg = object_state(self.table_frame, stamp, oid, pos, q, v, w)
+            self.pub_state.publish(msg)
+            if oid == self.object_id:
+                self.pub_pose.publish(PoseStamped(header=header, pose=msg.pose))
+            # nav_msgs/Odometry: the twist is expressed in child_frame_id (the object's own axes).
+            rot = quat_to_matrix(q)
+            odom = Odometry(header=header, child_frame_id=oid)
+            odom.pose.pose = msg.pose
+            odom.twist.twist = twist(rot.T @ v, rot.T @ w)
+            self.pub_odom.publish(odom)
         if self.pub_clock is not None:
             self.pub_clock.publish(Clock(clock=stamp))
 
     def current_cloud(self) -> np.ndarray:
-        """The cloud the sensor would see now, table frame, (N, 3)."""
+        """The cloud the sensor would see now (every object), table frame, (N, 3)."""
         if self.get_parameter("cloud_source").value == "camera":
             pts = self._camera_cloud()
         else:
-            pos, q, _, _ = self.sim.state()
-            pts = self._cloud_obj @ quat_to_matrix(q).T + pos
+            posed = []
+            for oid, (pos, q, _, _) in self.sim.states().items():
+                posed.append(self.objects[oid].cloud_obj @ quat_to_matrix(q).T + pos)
+            pts = np.concatenate(posed) if posed else np.zeros((0, 3))
         noise = float(self.get_parameter("cloud_noise").value)
         if noise > 0 and len(pts):
             pts = pts + self._rng.normal(0.0, noise, pts.shape)
         return pts
 
     def _camera_cloud(self) -> np.ndarray:
-        """Back-project the object's pixels of a rendered depth image (pybullet TinyRenderer, DIRECT mode)."""
+        """Back-project the objects' pixels of a rendered depth image (pybullet TinyRenderer, DIRECT mode)."""
         p = self.get_parameter
         eye, target = np.asarray(p("camera_eye").value, float), np.asarray(p("camera_target").value, float)
         width, height = (int(v) for v in p("camera_resolution").value)
@@ -327,7 +416,9 @@ class SimNode(ManagedNode):
         right /= np.linalg.norm(right)
         up = np.cross(right, fwd)
         c = self.sim.client
-        bodies = {self.sim.body, self._visual_body()}
+        bodies = {b.uid for b in self.sim.bodies.values()} | {self._visual_body(k) for k in self.sim.ids}
+        if not bodies:
+            return np.zeros((0, 3))
         view = c.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist())
         proj = c.computeProjectionMatrixFOV(fov, width / height, near, far)
         _, _, _, depth, seg = c.getCameraImage(width, height, view, proj, renderer=c.ER_TINY_RENDERER)
@@ -341,22 +432,20 @@ class SimNode(ManagedNode):
         yn = (1.0 - 2.0 * (v_idx + 0.5) / height) * tan
         return eye + z[:, None] * (fwd + xn[:, None] * right + yn[:, None] * up)
 
-    def _visual_body(self) -> int:
+    def _visual_body(self, object_id: str) -> int:
         """A collision-free, massless copy of the object's mesh that the renderer can draw, posed like the object.
 
         Bodies built from collision vertices have no visual shape, so TinyRenderer would not see them. The copy
-        has no collision shape: physics and ray tests ignore it. A spawn rebuilds the world, hence the check.
+        has no collision shape: physics and ray tests ignore it. Spawning or removing the object removes it.
         """
-        c = self.sim.client
-        if self._visual is None or self._visual[0] is not self.sim.shape or self._visual[1] >= c.getNumBodies():
-            shape = self.sim.shape
-            vs = c.createVisualShape(c.GEOM_MESH, vertices=shape.vertices.tolist(),
-                                     indices=shape.faces.reshape(-1).tolist(), meshScale=self.sim.scale.tolist())
-            self._visual = (shape, c.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1,
-                                                     baseVisualShapeIndex=vs))
-        pos, q, _, _ = self.sim.state()
-        c.resetBasePositionAndOrientation(self._visual[1], pos.tolist(), q.tolist())
-        return self._visual[1]
+        c, obj, b = self.sim.client, self.objects[object_id], self.sim.get(object_id)
+        if obj.visual is None:
+            vs = c.createVisualShape(c.GEOM_MESH, vertices=b.shape.vertices.tolist(),
+                                     indices=b.shape.faces.reshape(-1).tolist(), meshScale=b.scale.tolist())
+            obj.visual = c.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vs)
+        pos, q, _, _ = self.sim.state(object_id)
+        c.resetBasePositionAndOrientation(obj.visual, pos.tolist(), q.tolist())
+        return obj.visual
 
     def camera_pose(self) -> RigidTransform:
         """Pose of camera_frame in the table frame (maps optical-frame points into the table frame) from the
@@ -393,7 +482,11 @@ class SimNode(ManagedNode):
 
     def _on_idle(self) -> None:
         if not self._running:
-            self._publish_state(self._idle_stamp())
+            self._publish_states(self._idle_stamp())
+        else:  # the objects at rest during a push (the moving ones are published every frame)
+            resting = [k for k in self.sim.ids if k != self._pushed and k not in self._moving]
+            if resting:
+                self._publish_states(self._sim_ns, resting)
 
     # ------------------------------------------------------------------------------------------------ pushes
     def start_push(self, req: PushObject.Request) -> tuple[bool, str]:
@@ -401,11 +494,14 @@ class SimNode(ManagedNode):
         if self._running:
             return False, (f"push rejected: push {self.push_id} is still running (the object moves); wait until "
                            "it comes to rest or call reset")
-        if req.object_id and req.object_id != self.object_id:
-            return False, f"push rejected: unknown object_id {req.object_id!r} (current object: {self.object_id!r})"
+        oid = req.object_id or self.object_id
+        if oid not in self.sim.bodies:
+            known = ", ".join(repr(k) for k in self.sim.ids) or "none: spawn one"
+            return False, f"push rejected: unknown object_id {oid!r} (objects: {known})"
         vmax = float(self.get_parameter("max_linear_speed").value)
         wmax = float(self.get_parameter("max_angular_speed").value)
-        pos, q, v_before, w_before = self.sim.state()
+        body = self.sim.get(oid)
+        pos, q, v_before, w_before = self.sim.state(oid)
         if req.use_velocity:
             lin, ang = xyz_to_numpy(req.velocity.linear), xyz_to_numpy(req.velocity.angular)
             if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
@@ -414,7 +510,7 @@ class SimNode(ManagedNode):
                 return False, (f"push rejected: velocity |v| = {np.linalg.norm(lin):.3g} m/s, |w| = "
                                f"{np.linalg.norm(ang):.3g} rad/s exceeds max_linear_speed {vmax:g} / "
                                f"max_angular_speed {wmax:g}")
-            self.sim.set_velocity(lin, ang)
+            self.sim.set_velocity(lin, ang, oid)
         else:
             impulse, point = xyz_to_numpy(req.impulse), xyz_to_numpy(req.point)
             if not (np.all(np.isfinite(impulse)) and np.all(np.isfinite(point))):
@@ -426,24 +522,25 @@ class SimNode(ManagedNode):
             if np.linalg.norm(point - pos) > 1.0:
                 return False, (f"push rejected: point {point.tolist()} is {np.linalg.norm(point - pos):.2f} m from "
                                "the object's centre of mass")
-            lin, ang = self.sim.apply_impulse(impulse, point)
+            lin, ang = self.sim.apply_impulse(impulse, point, oid)
             if np.linalg.norm(lin) > vmax or np.linalg.norm(ang) > wmax:
-                self.sim.set_velocity(v_before, w_before)
+                self.sim.set_velocity(v_before, w_before, oid)
                 return False, (f"push rejected: the impulse would give |v| = {np.linalg.norm(lin):.3g} m/s, |w| = "
-                               f"{np.linalg.norm(ang):.3g} rad/s (mass {self.sim.mass:.3g} kg), above "
+                               f"{np.linalg.norm(ang):.3g} rad/s (mass {body.mass:.3g} kg), above "
                                f"max_linear_speed {vmax:g} / max_angular_speed {wmax:g}")
         # Frame 0 = the state right after the push (the dataset convention: velocities set, pose unchanged).
         self.push_id += 1
+        self.object_id, self._pushed, self._moving = oid, oid, {oid}
         self._running, self._frame, self._quiet = True, 0, 0
         self._t0_ns = self._idle_stamp() + 1  # strictly after every idle stamp already published
         self._sim_ns = self._t0_ns
         self._wall0 = time.monotonic()
-        self._publish_state(self._t0_ns)
-        _, _, v, w = self.sim.state()
+        self._publish_states(self._t0_ns)  # every object at the push instant
+        _, _, v, w = self.sim.state(oid)
         self.pub_twist.publish(TwistStamped(header=Header(frame_id=self.table_frame, stamp=ns_to_time(self._t0_ns)),
                                             twist=twist(v, w)))
         self._step_timer.reset()
-        return True, f"push {self.push_id} started"
+        return True, f"push {self.push_id} of {oid!r} started"
 
     def _on_push(self, req: PushObject.Request, res: PushObject.Response) -> PushObject.Response:
         try:
@@ -451,7 +548,7 @@ class SimNode(ManagedNode):
         except Exception as exc:  # noqa: BLE001 - a bad request must never take the node down
             res.success, res.message = False, f"push failed: {exc}"
         if res.success:
-            _, _, v, w = self.sim.state()
+            _, _, v, w = self.sim.state(self._pushed)
             res.push_id = self.push_id
             res.initial_twist = twist(v, w)
         else:
@@ -475,15 +572,20 @@ class SimNode(ManagedNode):
         cfg = self.sim.config
         max_frames = int(round(float(self.get_parameter("max_push_time").value) / DT))
         for _ in range(frames):
-            _, _, v, w = self.sim.step_frame()
+            self.sim.step()  # every object: the pushed one may hit others
             self._frame += 1
             self._sim_ns = self._t0_ns + self._frame * DT_NS
-            still = np.linalg.norm(v) < cfg.rest_lin_vel and np.linalg.norm(w) < cfg.rest_ang_vel
-            self._quiet = self._quiet + 1 if still else 0
+            moving = {k for k, (_, _, v, w) in self.sim.states().items()
+                      if np.linalg.norm(v) >= cfg.rest_lin_vel or np.linalg.norm(w) >= cfg.rest_ang_vel}
+            self._quiet = 0 if moving else self._quiet + 1
             at_rest = self._quiet >= cfg.rest_frames
             if at_rest:
-                self.sim.set_velocity(np.zeros(3), np.zeros(3))  # settled: hold it exactly still
-            self._publish_state(self._sim_ns)
+                for oid in self.sim.ids:  # settled: hold them exactly still
+                    self.sim.set_velocity(np.zeros(3), np.zeros(3), oid)
+            # the pushed object every frame, the others while they move and once when they stop
+            shown = moving | self._moving | {self._pushed}
+            self._moving = moving
+            self._publish_states(self._sim_ns, None if at_rest else [k for k in self.sim.ids if k in shown])
             if at_rest or self._frame >= max_frames:
                 self.get_logger().info(f"push {self.push_id} ended after {self._frame * DT:.2f} s "
                                        f"({'at rest' if at_rest else 'max_push_time'})")
@@ -499,17 +601,47 @@ class SimNode(ManagedNode):
     # ---------------------------------------------------------------------------------------------- services
     def _on_reset(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         try:
-            self._end_push()
-            x, y, yaw = self.spawn_pose
-            self.sim.spawn(self.sim.shape, scale=self.sim.scale, xy=(x, y), yaw=yaw, friction=self.sim.friction)
-            self._visual = None
-            self._publish_state(self._idle_stamp())
-            res.success, res.message = True, f"{self.object_id} back at ({x:g}, {y:g}, yaw {yaw:g}) at rest"
+            res.success, res.message = self.reset()
         except Exception as exc:  # noqa: BLE001
             res.success, res.message = False, f"reset failed: {exc}"
+        if not res.success:
+            self._refuse(res.message)
         return res
 
+    def reset(self) -> tuple[bool, str]:
+        """Every object back at its spawn pose, at rest; refused (nothing moves) when two spawn poses overlap
+        (an object was spawned where another had been pushed away from)."""
+        self._hold_still()
+        before = {k: self.sim.state(k)[:2] for k in self.sim.ids}
+        for k, obj in self.objects.items():
+            self.sim.place(k, obj.spawn_pose[:2], obj.spawn_pose[2], settle=False)
+        clash = next(((k, hits) for k in self.sim.ids if (hits := self.sim.overlaps(k))), None)
+        if clash is not None:
+            for k, (pos, q) in before.items():
+                self.sim.set_pose(pos, q, k)
+            return False, (f"reset refused: the spawn poses of {clash[0]!r} and {sorted(clash[1])[0]!r} overlap; "
+                           "spawn one of them again elsewhere (spawn_object with its id)")
+        for k, obj in self.objects.items():
+            self.sim.place(k, obj.spawn_pose[:2], obj.spawn_pose[2])
+        self._hold_still()
+        self._publish_states(self._idle_stamp())
+        where = ", ".join(f"{k} at ({o.spawn_pose[0]:g}, {o.spawn_pose[1]:g}, yaw {o.spawn_pose[2]:g})"
+                          for k, o in self.objects.items())
+        return True, f"{where or 'no object'}: back at rest"
+
     def _on_spawn(self, req: SpawnObject.Request, res: SpawnObject.Response) -> SpawnObject.Response:
+        if req.category == REMOVE:
+            oid = req.object_id or self.default_object_id
+            try:
+                self.remove(oid)
+            except ValueError as exc:
+                res.success, res.message = False, f"remove failed: {exc}"
+                self._refuse(res.message)
+                return res
+            self._publish_states(self._idle_stamp())
+            res.success, res.message = True, f"removed {oid} ({len(self.objects)} objects left)"
+            self.get_logger().info(res.message)
+            return res
         scale = xyz_to_numpy(req.scale)
         if not np.any(scale):
             scale = np.ones(3)
@@ -518,14 +650,16 @@ class SimNode(ManagedNode):
         try:
             self.spawn(req.object_id, category, req.mesh_path, req.shape_seed, scale, (req.x, req.y, req.yaw),
                        friction)
-        except Exception as exc:  # noqa: BLE001 - bad mesh, unknown category: answer, keep the old object
+        except Exception as exc:  # noqa: BLE001 - bad mesh, unknown category, overlap: answer, keep the objects
             res.success, res.message = False, f"spawn failed: {exc}"
             self._refuse(res.message)
             return res
+        body = self.sim.get(self.object_id)
         res.success = True
-        res.message = f"spawned {self.object_id}: {self.sim.shape.name} ({self.sim.mass:.3f} kg)"
+        res.message = (f"spawned {self.object_id}: {body.shape.name} ({body.mass:.3f} kg); "
+                       f"{len(self.objects)} objects")
         res.half_extents = vector3(self.half_extents())
-        res.mass = float(self.sim.mass)
+        res.mass = float(body.mass)
         self.get_logger().info(res.message)
         return res
 
