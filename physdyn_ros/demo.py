@@ -1,16 +1,22 @@
-"""``physdyn demo``: start the suite, push several objects, compare the predicted and the true motion.
+"""``physdyn demo``: start the suite, push the objects of a table one by one, compare predicted and true motion.
 
-One command on the shipped model (or --model PATH). The sim runs as fast as possible (real_time_factor 0). For
-each push: spawn an object (procedural categories and pybullet_data meshes the model never saw), wait for its
-shape feature, push it through the sim's `push` service, collect the prediction the predictor publishes for the
-push's initial_twist and the true trajectory the sim publishes on object_state, and print the errors.
+One command on the shipped model (or --model PATH). The sim runs as fast as possible (real_time_factor 0). Each
+table holds up to --objects objects at once (procedural categories and pybullet_data meshes the model never saw),
+spawned through the sim's `spawn_object` service under the ids obj1, obj2, ... around the table's centre; the
+perception node tracks them all (single_object false: ids track_<n>), and each sim object is matched to its
+tracked id by centroid. Then each object is pushed by its id (`push` service), outwards so that it does not hit
+the others; its prediction is asked of the predictor's `predict_trajectory` service by the tracked id, from the
+true pose at the push instant (what a tracker would give; the sim's states carry the sim's ids, not the tracked
+ones) and the push's initial twist; the true trajectory is the sim's object_state of that id. The next table
+replaces the objects (same ids) after a reset, until --pushes objects were pushed, one push each.
 
 What is scored is what the model claims: where the object comes to rest and whether it topples. A push that
 topples is scored up to the topple (the last upright frame); where a toppled object rolls afterwards is not
 predicted and not scored. Each push gets a verdict: GOOD within 2 cm and 10 deg with the topple predicted right
 (the planner's tolerance), FAIR within 5 cm and 30 deg with the topple right, POOR otherwise.
-Writes DIR/demo.png (top view at one scale for every panel: outlines and headings at the start, the predicted
-and the true pose, a scale bar, the verdicts), DIR/results.json and the nodes' logs in DIR/logs/.
+Writes DIR/demo.png (one row per table: the whole table with every object's true and predicted path, then one
+top view per push at one scale for every push panel: outlines and headings at the start, the predicted and the
+true pose, a scale bar, the verdicts), DIR/results.json and the nodes' logs in DIR/logs/.
 """
 from __future__ import annotations
 
@@ -30,6 +36,12 @@ TOPPLE_THRESHOLD = 0.5
 #: (verdict, position cm, rotation deg): the first whose bounds hold, with the topple predicted right.
 VERDICTS = (("GOOD", 2.0, 10.0), ("FAIR", 5.0, 30.0))
 OUTLINE_POINTS = 400
+#: m: the objects of a table sit on a circle of this radius around the table's centre (one object: at it).
+TABLE_RADIUS = 0.25
+#: m: a tracked feature's centroid must be this close to a sim object to be that object.
+MATCH_DISTANCE = 0.03
+#: s: the sim's max_push_time in the demo.
+MAX_PUSH_TIME = 6.0
 
 
 @dataclass
@@ -37,6 +49,10 @@ class PushResult:
     index: int
     shape: str
     category: str
+    table: int  # 1, 2, ...: which table (set of objects) the object was on
+    object_id: str  # the sim's id, pushed by it
+    tracked_id: str  # the perception node's id, the predictor was asked by it
+    tracked_id_after: str  # the tracked id of the object where it came to rest ("" if none within MATCH_DISTANCE)
     impulse: list[float]
     initial_lin_vel: list[float]
     initial_ang_vel: list[float]
@@ -111,7 +127,10 @@ class DemoClient:
         from sensor_msgs.msg import PointCloud2
 
         from .nodes.sim_node import CLOUD_QOS, STATE_QOS
-        from .srv import PushObject, SpawnObject
+        from rclpy.parameter_client import AsyncParameterClient
+        from std_srvs.srv import Trigger
+
+        from .srv import PredictTrajectory, PushObject, SpawnObject
 
         self.node = rclpy.create_node("physdyn_demo")
         self.lock = threading.Lock()
@@ -127,6 +146,9 @@ class DemoClient:
         self.node.create_subscription(PointCloud2, "cloud", self._add(self.clouds), CLOUD_QOS)
         self.spawn = self.node.create_client(SpawnObject, "spawn_object")
         self.push = self.node.create_client(PushObject, "push")
+        self.reset = self.node.create_client(Trigger, "reset")
+        self.predict = self.node.create_client(PredictTrajectory, "predict_trajectory")
+        self.predictor_params = AsyncParameterClient(self.node, "predictor")
         self.executor = MultiThreadedExecutor(num_threads=2)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
@@ -146,11 +168,13 @@ class DemoClient:
     def call(self, client, request, timeout: float = 60.0):
         if not client.wait_for_service(timeout_sec=timeout):
             raise RuntimeError(f"service {client.srv_name} is not available")
-        future = client.call_async(request)
+        return self.result(client.call_async(request), client.srv_name, timeout)
+
+    def result(self, future, what: str, timeout: float = 60.0):
         deadline = time.monotonic() + timeout
         while not future.done():
             if time.monotonic() > deadline:
-                raise RuntimeError(f"no answer from {client.srv_name} within {timeout:.0f} s")
+                raise RuntimeError(f"no answer from {what} within {timeout:.0f} s")
             time.sleep(0.005)
         return future.result()
 
@@ -176,36 +200,111 @@ class DemoClient:
         self.node.destroy_node()
 
 
-def run_push(c: DemoClient, index: int, category: str, shape_seed: int, rng: np.random.Generator,
-             horizon: int) -> PushResult:
-    from .ros.convert import time_to_ns
-    from .srv import PushObject, SpawnObject
+def table_slots(n: int, rng: np.random.Generator) -> list[tuple[float, float]]:
+    """(x, y) of n objects: on a circle of TABLE_RADIUS around the table's centre, one object at the centre."""
+    if n == 1:
+        return [(0.0, 0.0)]
+    phase = float(rng.uniform(0.0, 2.0 * math.pi))
+    return [(TABLE_RADIUS * math.cos(phase + 2 * math.pi * k / n), TABLE_RADIUS * math.sin(phase + 2 * math.pi * k / n))
+            for k in range(n)]
 
-    yaw = float(rng.uniform(-math.pi, math.pi))
-    spawned = c.call(c.spawn, SpawnObject.Request(category=category, shape_seed=shape_seed, yaw=yaw))
-    if not spawned.success:
-        raise RuntimeError(spawned.message)
-    shape = spawned.message.split(": ", 1)[-1].split(" (")[0]
-    # Clouds stamped at or after the first state published after the spawn show the new object.
+
+def latest_state(c: DemoClient, object_id: str, after_ns: int = -1):
+    """The newest object_state of `object_id` stamped after after_ns (None if none)."""
+    from .ros.convert import time_to_ns
+
+    return next((s for s in reversed(c.states) if s.object_id == object_id and time_to_ns(s.header.stamp) > after_ns),
+                None)
+
+
+def match_tracks(c: DemoClient, positions: dict[str, np.ndarray], after_ns: int) -> dict[str, str] | None:
+    """{sim id: tracked id} from the newest cloud stamped after after_ns whose features include one within
+    MATCH_DISTANCE of every position (None while there is none: perception has not seen them yet)."""
+    from .ros.convert import time_to_ns
+
+    stamps = sorted({time_to_ns(f.header.stamp) for f in c.features if time_to_ns(f.header.stamp) > after_ns})
+    for t in reversed(stamps):
+        feats = [f for f in c.features if time_to_ns(f.header.stamp) == t]
+        out = {}
+        for oid, p in positions.items():
+            dist = {f.object_id: math.hypot(f.centroid.x - p[0], f.centroid.y - p[1]) for f in feats}
+            best = min(dist, key=dist.get) if dist else ""
+            if not best or dist[best] > MATCH_DISTANCE or best in out.values():
+                break
+            out[oid] = best
+        else:
+            return out
+    return None
+
+
+def set_table(c: DemoClient, table: int, plan: list[tuple[str, int]], previous: list[str],
+              rng: np.random.Generator) -> tuple[dict[str, object], dict[str, str], int]:
+    """Spawn the table's objects (replacing the previous table's after a reset), wait until perception tracks
+    them. Returns ({sim id: SpawnObject response}, {sim id: tracked id}, stamp of the spawn)."""
+    from .ros.convert import time_to_ns
+    from .srv import SpawnObject
+    from std_srvs.srv import Trigger
+
+    ids = [f"obj{k + 1}" for k in range(len(plan))]
+    if table > 1:
+        done = c.call(c.reset, Trigger.Request())  # every object back at its slot: the new ones fit in place
+        if not done.success:
+            raise RuntimeError(done.message)
+    for oid in previous[len(ids):]:  # a smaller last table
+        c.call(c.spawn, SpawnObject.Request(object_id=oid, category="remove"))
+    spawned = {}
+    for oid, (category, shape_seed), (x, y) in zip(ids, plan, table_slots(len(plan), rng)):
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        res = c.call(c.spawn, SpawnObject.Request(object_id=oid, category=category, shape_seed=shape_seed, x=x,
+                                                  y=y, yaw=yaw))
+        if not res.success:
+            raise RuntimeError(f"table {table}, {oid}: {res.message}")
+        spawned[oid] = res
     n_states = len(c.states)
-    first = c.wait(lambda: c.states[n_states:] and c.states[n_states], 10, "the new object's state")
-    t_spawn = time_to_ns(first.header.stamp)
-    c.wait(lambda: any(time_to_ns(f.header.stamp) >= t_spawn for f in c.features), 30,
-           f"the shape feature of {shape} (is the perception node running?)")
-    cloud = c.wait(lambda: next((m for m in reversed(c.clouds) if time_to_ns(m.header.stamp) >= t_spawn), None),
-                   30, f"the cloud of {shape}")
-    outline = body_points(cloud, first.pose, rng)
-    # A push through a point beside the centre of mass: it slides and spins; sometimes it topples.
+    last = c.wait(lambda: next((s for s in c.states[n_states:] if s.object_id == ids[-1]), None), 10,
+                  "the new objects' states")
+    t_spawn = time_to_ns(last.header.stamp)
+
+    def tracks():
+        pos = {}
+        for oid in ids:
+            s = latest_state(c, oid)
+            pos[oid] = np.array([s.pose.position.x, s.pose.position.y])
+        return match_tracks(c, pos, t_spawn)
+
+    tracked = c.wait(tracks, 30, f"perception to track the {len(ids)} objects of table {table} (is the perception "
+                     "node running? see logs/perception.log)")
+    return spawned, tracked, t_spawn
+
+
+def run_push(c: DemoClient, index: int, table: int, object_id: str, tracked_id: str, spawned, category: str,
+             rng: np.random.Generator, horizon: int) -> PushResult:
+    from rclpy.parameter import Parameter
+
+    from .ros.convert import time_to_ns
+    from .srv import PredictTrajectory, PushObject
+
+    shape = spawned.message.split(": ", 1)[-1].split(" (")[0]
+    first = latest_state(c, object_id)
+    t_first = time_to_ns(first.header.stamp)
+    cloud = c.wait(lambda: next((m for m in reversed(c.clouds) if time_to_ns(m.header.stamp) >= t_first), None),
+                   30, f"a cloud of {object_id}")
+    he = np.array([spawned.half_extents.x, spawned.half_extents.y, spawned.half_extents.z])
+    outline = body_points(cloud, first.pose, rng, he)
+    # The predictor's own prediction for each initial_twist follows its object_id parameter: the pushed object.
+    c.result(c.predictor_params.set_parameters([Parameter("object_id", value=tracked_id)]), "predictor parameters")
+    # A push through a point beside the centre of mass, outwards from the table's centre (away from the other
+    # objects): it slides and spins; sometimes it topples.
+    com = first.pose.position
     speed = float(rng.uniform(0.3, 1.2))
-    az = float(rng.uniform(-math.pi, math.pi))
+    az = math.atan2(com.y, com.x) + float(rng.uniform(-0.5, 0.5)) if math.hypot(com.x, com.y) > 0.05 else \
+        float(rng.uniform(-math.pi, math.pi))
     d = np.array([math.cos(az), math.sin(az), 0.0])
     side = np.array([-d[1], d[0], 0.0])
-    com = first.pose.position
-    he = np.array([spawned.half_extents.x, spawned.half_extents.y, spawned.half_extents.z])
     point = np.array([com.x, com.y, com.z]) + side * rng.uniform(-0.5, 0.5) * he[:2].min() \
         + np.array([0, 0, rng.uniform(0.0, 0.6) * he[2]])
     impulse = spawned.mass * speed * d
-    req = PushObject.Request()
+    req = PushObject.Request(object_id=object_id)
     req.impulse.x, req.impulse.y, req.impulse.z = (float(v) for v in impulse)
     req.point.x, req.point.y, req.point.z = (float(v) for v in point)
     n_twists = len(c.twists)
@@ -214,18 +313,25 @@ def run_push(c: DemoClient, index: int, category: str, shape_seed: int, rng: np.
         raise RuntimeError(res.message)
     twist = c.wait(lambda: c.twists[n_twists:] and c.twists[n_twists], 10, "initial_twist")
     t0 = time_to_ns(twist.header.stamp)
-    traj = c.wait(lambda: next((t for t in reversed(c.trajs) if time_to_ns(t.header.stamp) == t0), None), 30,
-                  "the predicted trajectory (see logs/predictor.log)")
+    frame0 = c.wait(lambda: next((s for s in c.states if s.object_id == object_id
+                                  and time_to_ns(s.header.stamp) == t0), None), 10, "the state at the push")
+    ask = PredictTrajectory.Request(object_id=tracked_id, horizon=horizon)
+    ask.header.frame_id, ask.header.stamp = frame0.header.frame_id, frame0.header.stamp
+    ask.initial_pose, ask.initial_twist = frame0.pose, res.initial_twist
+    answer = c.call(c.predict, ask)
+    if not answer.success:
+        raise RuntimeError(f"predict_trajectory for {tracked_id} ({object_id}): {answer.message}")
+    traj = answer.trajectory
     dt_ns = time_to_ns(traj.states[1].header.stamp) - t0 if len(traj.states) > 1 else int(1e9 / 15)
     end_ns = t0 + horizon * dt_ns
 
     def truth():
-        after = [s for s in c.states if time_to_ns(s.header.stamp) > t0]
-        # the sim holds a settled object exactly still (zero twist): the trajectory is complete then
+        after = [s for s in c.states if s.object_id == object_id and time_to_ns(s.header.stamp) > t0]
+        # the sim holds settled objects exactly still (zero twist): the trajectory is complete then
         done = any(time_to_ns(s.header.stamp) >= end_ns or (s.twist.linear.x == s.twist.linear.y ==
                    s.twist.linear.z == s.twist.angular.x == s.twist.angular.y == s.twist.angular.z == 0.0)
                    for s in after)
-        return done and [s for s in c.states if t0 <= time_to_ns(s.header.stamp) <= end_ns]
+        return done and [s for s in c.states if s.object_id == object_id and t0 <= time_to_ns(s.header.stamp) <= end_ns]
 
     true_states = c.wait(truth, 60, "the true trajectory on object_state")
     by_step = {round((time_to_ns(s.header.stamp) - t0) / dt_ns): s for s in true_states}
@@ -235,6 +341,14 @@ def run_push(c: DemoClient, index: int, category: str, shape_seed: int, rng: np.
         true_pos.append([last.pose.position.x, last.pose.position.y, last.pose.position.z])
         o = last.pose.orientation
         true_q.append([o.x, o.y, o.z, o.w])
+    # the push ends when every object rests (or after max_push_time): then the next one may start
+    rest = c.wait(lambda: next((s for s in c.states if s.object_id == object_id and time_to_ns(s.header.stamp) > t0
+                                and (time_to_ns(s.header.stamp) >= t0 + (MAX_PUSH_TIME - 0.5 / 15) * 1e9
+                                     or s.twist.linear.x == s.twist.linear.y == s.twist.linear.z == 0.0)), None),
+                  60, f"the push of {object_id} to end")
+    # where perception sees it at rest: the same tracked id?
+    after = match_tracks_one(c, object_id, np.array([rest.pose.position.x, rest.pose.position.y]),
+                             time_to_ns(rest.header.stamp))
     pred_pos = np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in traj.states])
     pred_q = np.array([[s.pose.orientation.x, s.pose.orientation.y, s.pose.orientation.z, s.pose.orientation.w]
                        for s in traj.states])
@@ -245,7 +359,8 @@ def run_push(c: DemoClient, index: int, category: str, shape_seed: int, rng: np.
     predicted_topple = bool(traj.topple_probability > TOPPLE_THRESHOLD)
     toppled = sc["true_topple_step"] >= 0
     return PushResult(
-        index=index, shape=shape, category=category, impulse=impulse.round(4).tolist(),
+        index=index, shape=shape, category=category, table=table, object_id=object_id, tracked_id=tracked_id,
+        tracked_id_after=after, impulse=impulse.round(4).tolist(),
         initial_lin_vel=[res.initial_twist.linear.x, res.initial_twist.linear.y, res.initial_twist.linear.z],
         initial_ang_vel=[res.initial_twist.angular.x, res.initial_twist.angular.y, res.initial_twist.angular.z],
         predicted_final=pred_pos[k].tolist(), true_final=true_pos[k].tolist(), **sc,
@@ -256,16 +371,30 @@ def run_push(c: DemoClient, index: int, category: str, shape_seed: int, rng: np.
         outline=outline.round(5).tolist())
 
 
-def body_points(cloud, pose, rng: np.random.Generator) -> np.ndarray:
-    """The object's surface points (table frame cloud) in its body frame at `pose`, at most OUTLINE_POINTS."""
+def match_tracks_one(c: DemoClient, object_id: str, xy: np.ndarray, after_ns: int, timeout: float = 10.0) -> str:
+    """The tracked id nearest `xy` (within MATCH_DISTANCE) in a cloud stamped after after_ns; "" if none."""
+    try:
+        return c.wait(lambda: (match_tracks(c, {object_id: xy}, after_ns) or {}).get(object_id), timeout,
+                      f"the tracked id of {object_id} at rest")
+    except RuntimeError:
+        return ""
+
+
+def body_points(cloud, pose, rng: np.random.Generator, half_extents: np.ndarray) -> np.ndarray:
+    """The object's surface points in its body frame at `pose`, at most OUTLINE_POINTS: the points of the table
+    frame cloud (every object) within its half extents (+ 5 mm)."""
     from scipy.spatial.transform import Rotation
 
     from .ros.cloud import cloud_to_xyz
 
-    pts = cloud_to_xyz(cloud, max_points=OUTLINE_POINTS, rng=rng).astype(np.float64)
+    pts = cloud_to_xyz(cloud).astype(np.float64)
     c = np.array([pose.position.x, pose.position.y, pose.position.z])
     q = [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]
-    return Rotation.from_quat(q).inv().apply(pts - c)
+    local = Rotation.from_quat(q).inv().apply(pts - c)
+    local = local[np.all(np.abs(local) <= np.asarray(half_extents) + 0.005, axis=1)]
+    if len(local) > OUTLINE_POINTS:
+        local = local[rng.choice(len(local), OUTLINE_POINTS, replace=False)]
+    return local
 
 
 def nice_length(span_cm: float) -> float:
@@ -306,12 +435,15 @@ def summary(results: list[PushResult]) -> str:
 
 
 def plot(results: list[PushResult], path: Path, model_id: str) -> None:
-    """Top views at ONE scale: outlines and headings at the start (grey), the true (black) and the predicted
-    (red, dashed) pose at the scored step; the true path after a topple is dotted and not scored."""
+    """One row per table: the table from above with every object's start outline and its true (solid) and
+    predicted (dashed) path and final pose in its own colour; then one top view per push, every push panel at ONE
+    scale: outlines and headings at the start (grey), the true (black) and the predicted (red, dashed) pose at the
+    scored step; the true path after a topple is dotted and not scored."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     colours = {"GOOD": "tab:green", "FAIR": "tab:orange", "POOR": "tab:red"}
     panels = []
@@ -324,59 +456,99 @@ def plot(results: list[PushResult], path: Path, model_id: str) -> None:
                   "pred": footprint(body, r.predicted_final, r.predicted_quat)}
         scored = np.vstack([t[: k + 1], p[: k + 1]] + list(shapes.values()))
         panels.append((r, t, p, body, shapes, scored))
-    # one scale for every panel: the largest scored extent decides
+    # one scale for every push panel: the largest scored extent decides
     half = 0.55 * max(float(np.ptp(sc, axis=0).max()) for *_, sc in panels) + 1.0
     bar = nice_length(2 * half)
-    cols = min(3, len(results))
-    rows = math.ceil(len(results) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.9 * rows), squeeze=False)
-    for ax in axes.flat[len(results):]:
+    tables = sorted({r.table for r in results})
+    cols = 1 + max(sum(r.table == tb for r in results) for tb in tables)
+    fig, axes = plt.subplots(len(tables), cols, figsize=(4.3 * cols, 5.0 * len(tables)), squeeze=False)
+    for ax in axes.flat:
         ax.axis("off")
-    for (r, t, p, body, shapes, scored), ax in zip(panels, axes.flat):
-        k = r.scored_step
-        centre = 0.5 * (scored.min(axis=0) + scored.max(axis=0))
-        ax.fill(*shapes["start"].T, color="0.85", zorder=1, label="start")
-        ax.plot(*shapes["true"].T, "-", color="k", lw=1.6, zorder=3, label="true pose")
-        ax.plot(*shapes["pred"].T, "--", color="tab:red", lw=1.6, zorder=4, label="predicted pose")
-        for (pos, q), colour in (((r.true_xy[0] + [0.0], r.start_quat), "0.45"),
-                                 ((r.true_final, r.true_quat), "k"), ((r.predicted_final, r.predicted_quat),
-                                                                      "tab:red")):
-            start, delta = heading(body, pos, q)
-            ax.annotate("", start + delta, start, arrowprops=dict(arrowstyle="->", color=colour, lw=1.3), zorder=5)
-        ax.plot(*t[: k + 1].T, "-", color="k", lw=1.0, zorder=3)
-        ax.plot(*p[: k + 1].T, "--", color="tab:red", lw=1.0, zorder=4)
-        if r.toppled:
-            ax.plot(*t[k:].T, ":", color="0.4", lw=1.0, zorder=2, label="after the topple (not scored)")
-            ax.plot(*t[r.true_topple_step], "x", color="k", ms=9, mew=2, zorder=6, label="true topple")
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
-        x0, y0 = centre[0] - 0.9 * half, centre[1] - 0.88 * half
-        ax.plot([x0, x0 + bar], [y0, y0], "-", color="k", lw=3, solid_capstyle="butt")
-        ax.text(x0 + bar / 2, y0 + 0.04 * half, f"{bar:g} cm", ha="center", va="bottom", fontsize=8)
-        when = (f"at {k / 15:.1f} s, the last upright frame" if r.toppled else f"at {k / 15:.1f} s (the end)")
-        topple = (f"topple: predicted {'yes' if r.predicted_topple else 'no'} (p {r.topple_probability:.2f}), "
-                  f"true {'yes' if r.toppled else 'no'}")
-        ax.set_title(f"{r.index}: {r.shape}   {r.verdict}\nerror {r.position_error_cm:.1f} cm, "
-                     f"{r.rotation_error_deg:.0f} deg {when}\n{topple}", fontsize=8.5,
-                     color=colours[r.verdict])
-    from matplotlib.lines import Line2D
-
+    for row, tb in enumerate(tables):
+        mine = [pn for pn in panels if pn[0].table == tb]
+        table_panel(axes[row, 0], tb, mine)
+        for (r, t, p, body, shapes, scored), ax in zip(mine, axes[row, 1:]):
+            ax.axis("on")
+            push_panel(ax, r, t, p, body, shapes, scored, half, bar, colours[r.verdict])
     handles = {}
-    for ax in axes.flat[: len(results)]:
+    for ax in axes[:, 1:].flat:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
     handles["heading (body x axis)"] = Line2D([], [], color="k", marker=">", lw=1.0, markevery=[1])
     handles["path of the centre of mass"] = Line2D([], [], color="k", lw=1.0)
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=min(7, len(handles)), fontsize=8,
                frameon=False)
-    fig.suptitle(f"physdyn demo, model {model_id}: top view, every panel at the same scale, "
-                 f"{len(results[0].true_xy) - 1} steps of 1/15 s\n{summary(results)}", fontsize=10)
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    fig.suptitle(f"physdyn demo, model {model_id}: top views, {len(results[0].true_xy) - 1} steps of 1/15 s; left: "
+                 "each table, right: each push (at one scale)\n" + summary(results), fontsize=10)
+    fig.tight_layout(rect=(0, 0.04, 1, 0.96))
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def table_panel(ax, table: int, panels: list) -> None:
+    """The whole table: each object's start outline, true path and outline at the scored step (solid) and
+    predicted ones (dashed) in the object's colour, labelled with its sim id and tracked id."""
+    ax.axis("on")
+    cmap = ["tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink"]
+    everything = []
+    for j, (r, t, p, body, shapes, scored) in enumerate(panels):
+        colour = cmap[j % len(cmap)]
+        t, p = t[: r.scored_step + 1], p[: r.scored_step + 1]  # a toppled object's roll is not scored
+        ax.fill(*shapes["start"].T, color=colour, alpha=0.18, zorder=1)
+        ax.plot(*t.T, "-", color=colour, lw=1.4, zorder=3)
+        ax.plot(*p.T, "--", color=colour, lw=1.4, zorder=4)
+        ax.plot(*shapes["true"].T, "-", color=colour, lw=1.0, zorder=3)
+        ax.plot(*shapes["pred"].T, "--", color=colour, lw=1.0, zorder=4)
+        c0 = shapes["start"][:-1].mean(axis=0)
+        ax.text(c0[0], c0[1], f"{r.object_id}\n{r.tracked_id}", ha="center", va="center", fontsize=7, zorder=6)
+        everything += [t, p] + list(shapes.values())
+    pts = np.vstack(everything)
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    half = 0.55 * float(np.ptp(pts, axis=0).max()) + 2.0
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    bar = nice_length(2 * half)
+    x0, y0 = centre[0] - 0.9 * half, centre[1] - 0.88 * half
+    ax.plot([x0, x0 + bar], [y0, y0], "-", color="k", lw=3, solid_capstyle="butt")
+    ax.text(x0 + bar / 2, y0 + 0.04 * half, f"{bar:g} cm", ha="center", va="bottom", fontsize=8)
+    ax.set_title(f"table {table}: {len(panels)} objects (sim id / tracked id)\ntrue path solid, predicted dashed",
+                 fontsize=8.5)
+
+
+def push_panel(ax, r: PushResult, t: np.ndarray, p: np.ndarray, body: np.ndarray, shapes: dict,
+               scored: np.ndarray, half: float, bar: float, colour: str) -> None:
+    """One push from above (see plot)."""
+    k = r.scored_step
+    centre = 0.5 * (scored.min(axis=0) + scored.max(axis=0))
+    ax.fill(*shapes["start"].T, color="0.85", zorder=1, label="start")
+    ax.plot(*shapes["true"].T, "-", color="k", lw=1.6, zorder=3, label="true pose")
+    ax.plot(*shapes["pred"].T, "--", color="tab:red", lw=1.6, zorder=4, label="predicted pose")
+    for (pos, q), c in (((r.true_xy[0] + [0.0], r.start_quat), "0.45"), ((r.true_final, r.true_quat), "k"),
+                        ((r.predicted_final, r.predicted_quat), "tab:red")):
+        start, delta = heading(body, pos, q)
+        ax.annotate("", start + delta, start, arrowprops=dict(arrowstyle="->", color=c, lw=1.3), zorder=5)
+    ax.plot(*t[: k + 1].T, "-", color="k", lw=1.0, zorder=3)
+    ax.plot(*p[: k + 1].T, "--", color="tab:red", lw=1.0, zorder=4)
+    if r.toppled:
+        ax.plot(*t[k:].T, ":", color="0.4", lw=1.0, zorder=2, label="after the topple (not scored)")
+        ax.plot(*t[r.true_topple_step], "x", color="k", ms=9, mew=2, zorder=6, label="true topple")
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    x0, y0 = centre[0] - 0.9 * half, centre[1] - 0.88 * half
+    ax.plot([x0, x0 + bar], [y0, y0], "-", color="k", lw=3, solid_capstyle="butt")
+    ax.text(x0 + bar / 2, y0 + 0.04 * half, f"{bar:g} cm", ha="center", va="bottom", fontsize=8)
+    when = f"at {k / 15:.1f} s, the last upright frame" if r.toppled else f"at {k / 15:.1f} s (the end)"
+    topple = (f"topple: predicted {'yes' if r.predicted_topple else 'no'} (p {r.topple_probability:.2f}), "
+              f"true {'yes' if r.toppled else 'no'}")
+    ax.set_title(f"{r.index}: {r.object_id} ({r.tracked_id}) {r.shape}   {r.verdict}\nerror "
+                 f"{r.position_error_cm:.1f} cm, {r.rotation_error_deg:.0f} deg {when}\n{topple}", fontsize=8,
+                 color=colour)
 
 
 def check_no_suite_running(timeout: float = 1.5) -> None:
@@ -398,7 +570,9 @@ def check_no_suite_running(timeout: float = 1.5) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--pushes", type=int, default=6, help="number of pushes (objects), default 6")
+    parser.add_argument("--pushes", type=int, default=6, help="number of pushes (objects, each pushed once), "
+                        "default 6")
+    parser.add_argument("--objects", type=int, default=3, help="objects on the table at once (1-6), default 3")
     parser.add_argument("--output", type=Path, default=Path("runs/demo"), help="folder for demo.png, "
                         "results.json and logs/ (default runs/demo)")
     parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
@@ -415,6 +589,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.pushes < 1:
         raise ValueError("--pushes must be >= 1")
+    if not 1 <= args.objects <= 6:
+        raise ValueError("--objects must be in 1..6")
     if not 1 <= args.horizon <= 150:
         raise ValueError("--horizon must be in 1..150")
     model = Path(args.model).expanduser().resolve() if args.model else DEFAULT_MODEL
@@ -424,9 +600,16 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     overrides = {
-        "sim": ["real_time_factor:=0.0", "publish_cloud_rate:=5.0", "max_push_time:=6.0", "rate:=15.0"],
-        "perception": [f"model_path:={model}"],
-        "predictor": [f"model_path:={model}", f"horizon:={args.horizon}", "max_feature_age:=30.0"],
+        "sim": ["real_time_factor:=0.0", "publish_cloud_rate:=5.0", f"max_push_time:={MAX_PUSH_TIME}", "rate:=15.0",
+                "object_id:=obj1"],  # the start object is the first table's obj1 (replaced by its spawn)
+        # at real_time_factor 0 a whole push happens between two clouds: the gate must cover the slide (the
+        # objects stand 0.43 m apart) and the timeout the push's simulated time (the next cloud's stamp is later)
+        "perception": [f"model_path:={model}", "single_object:=false", "id_prefix:=track_", "track_gate:=0.3",
+                       f"track_timeout:={MAX_PUSH_TIME + 4.0}"],
+        # the scored prediction comes from predict_trajectory (true pose at the push); the predictor's own one
+        # for each initial_twist (its object_id parameter, set per push) starts from the feature
+        "predictor": [f"model_path:={model}", f"horizon:={args.horizon}", "max_feature_age:=30.0",
+                      "initial_pose_source:=shape_feature"],
     }
     rclpy.init()
     suite = None
@@ -442,22 +625,36 @@ def run(args: argparse.Namespace) -> int:
         client = DemoClient()
         rng = np.random.default_rng(args.seed)
         results: list[PushResult] = []
-        header = (f"{'#':>2} {'object':<28} {'predicted (x, y) m':>19} {'true (x, y) m':>17} {'at s':>5} "
+        header = (f"{'#':>2} {'object':<34} {'predicted (x, y) m':>19} {'true (x, y) m':>17} {'at s':>5} "
                   f"{'err cm':>7} {'err deg':>8} {'topple p':>8} {'toppled':>7} verdict")
-        print(header)
-        for i, (category, seed) in enumerate(push_plan(args.pushes, args.seed), start=1):
-            r = run_push(client, i, category, seed, rng, args.horizon)
-            results.append(r)
-            print(f"{i:>2} {r.shape:<28} ({r.predicted_final[0]:+.3f}, {r.predicted_final[1]:+.3f})  "
-                  f"({r.true_final[0]:+.3f}, {r.true_final[1]:+.3f}) {r.scored_step / 15:>5.1f} "
-                  f"{r.position_error_cm:>7.1f} {r.rotation_error_deg:>8.1f} {r.topple_probability:>8.2f} "
-                  f"{'yes' if r.toppled else 'no':>7} {r.verdict}", flush=True)
-            dead = suite.dead()
-            if dead is not None:
-                raise RuntimeError(f"node '{dead.name}' died (see {out / 'logs' / (dead.name + '.log')})")
+        plan = push_plan(args.pushes, args.seed)
+        ids: list[str] = []
+        for table, first in enumerate(range(0, len(plan), args.objects), start=1):
+            objects = plan[first:first + args.objects]
+            spawned, tracked, _ = set_table(client, table, objects, ids, rng)
+            ids = list(spawned)
+            print(f"table {table}: " + ", ".join(f"{oid} = {spawned[oid].message.split(': ', 1)[-1].split(' (')[0]}"
+                                                 f" (tracked as {tracked[oid]})" for oid in ids), flush=True)
+            print(header)
+            for oid, (category, _) in zip(ids, objects):
+                i = len(results) + 1
+                r = run_push(client, i, table, oid, tracked[oid], spawned[oid], category, rng, args.horizon)
+                results.append(r)
+                name = f"{oid} {r.shape}"
+                print(f"{i:>2} {name:<34} ({r.predicted_final[0]:+.3f}, {r.predicted_final[1]:+.3f})  "
+                      f"({r.true_final[0]:+.3f}, {r.true_final[1]:+.3f}) {r.scored_step / 15:>5.1f} "
+                      f"{r.position_error_cm:>7.1f} {r.rotation_error_deg:>8.1f} {r.topple_probability:>8.2f} "
+                      f"{'yes' if r.toppled else 'no':>7} {r.verdict}"
+                      + ("" if r.tracked_id_after == r.tracked_id else
+                         f"  (tracked id {r.tracked_id} -> {r.tracked_id_after or 'lost'})"), flush=True)
+                dead = suite.dead()
+                if dead is not None:
+                    raise RuntimeError(f"node '{dead.name}' died (see {out / 'logs' / (dead.name + '.log')})")
         pos = np.array([r.position_error_cm for r in results])
         rot = np.array([r.rotation_error_deg for r in results])
         model_id = client.trajs[-1].model_id if client.trajs else "?"
+        stable = sum(r.tracked_id_after == r.tracked_id for r in results)
+        print(f"tracking: {stable} of {len(results)} pushed objects kept their tracked id")
         print(f"errors over {len(results)} pushes (a toppled push up to its topple): median {np.median(pos):.1f} cm,"
               f" {np.median(rot):.1f} deg; mean {pos.mean():.1f} cm, {rot.mean():.1f} deg")
         print(f"verdict: {summary(results)}")
