@@ -7,14 +7,20 @@ The bench plays the world: it starts perception_node and predictor_node with con
 up --nodes perception,predictor` does) and publishes the clouds, object states and twists itself.
 * twist -> trajectory: wall time from publishing an initial_twist (with the object_state of the same stamp
   already published) to receiving the predicted_trajectory stamped with it (60-step horizon).
-* service round trip: predict_trajectory by object_id, 60 steps, p50 / p99, one client, sequential.
+* service round trip: predict_trajectory by object_id, 60 steps, p50 / p99, one client, sequential; and where
+  it goes: the node's time in its callback (from the response message), the response's CDR serialization and
+  deserialization (timed in this process), and the CPU time per request of the node's process and of this client
+  process (/proc and process_time over the sequential requests; the rest of a round trip is DDS and waiting).
+  The client waits on an Event set by the future's done-callback (no polling), its node has no parameter
+  services and only the clients it uses: a lean Python client.
 * perception: a 100k-point cloud published on `cloud` -> its ShapeFeature received (DDS transfer of 1.6 MB +
   preprocessing + encoding), p50 / p99; and preprocessing + encoding alone, in this process.
 * concurrency: --clients clients, each sending requests back to back; requests per second and the number
   of requests not answered (must be 0).
-The last line is one JSON object: service_p50_ms, service_p99_ms, twist_to_traj_p50_ms, twist_to_traj_p99_ms,
-clients8_req_per_s, clients8_lost, twists_lost, perception_dds_p50_ms, perception_dds_dropped,
-perception_local_p50_ms. A lost sample is counted, never a traceback.
+The last line is one JSON object: service_p50_ms, service_p99_ms, service_callback_p50_ms, response_serialize_ms,
+response_deserialize_ms, node_cpu_per_request_ms, client_cpu_per_request_ms, twist_to_traj_p50_ms,
+twist_to_traj_p99_ms, clients8_req_per_s, clients8_lost, twists_lost, perception_dds_p50_ms, perception_dds_dropped,
+perception_local_p50_ms, load_average. A lost sample is counted, never a traceback.
 Without a shipped model the default architecture (config/model_default.yaml) is timed with random weights.
 """
 from __future__ import annotations
@@ -63,6 +69,44 @@ def p(samples: list[float], q: float) -> float | None:
     return round(float(np.percentile(np.asarray(samples) * 1e3, q)), 3) if samples else None
 
 
+def process_cpu(pid: int | None) -> float | None:
+    """CPU seconds (user + system, all threads) a process has used so far, from /proc (None where unreadable)."""
+    if pid is None:
+        return None
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def wire_costs(msg, cls, repeats: int = 30) -> tuple[list[float], list[float]]:
+    """CPU seconds to serialize `msg` and to deserialize its bytes as `cls` (rclpy.serialization, as the
+    executors do), measured in this process: what a round trip spends in message conversion."""
+    if msg is None:
+        return [], []
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    data = serialize_message(msg)
+    ser, deser = [], []
+    for _ in range(repeats):
+        t = time.thread_time()
+        serialize_message(msg)
+        ser.append(time.thread_time() - t)
+        t = time.thread_time()
+        deserialize_message(data, cls)
+        deser.append(time.thread_time() - t)
+    return ser, deser
+
+
+def callback_seconds(message: str) -> float | None:
+    """The node's own time in the service callback, from its response message ("60 steps in 3.2 ms")."""
+    try:
+        return float(message.rsplit(" in ", 1)[1].split()[0]) / 1e3
+    except (IndexError, ValueError):
+        return None
+
+
 def pct(samples: list[float]) -> str:
     if not samples:
         return "no samples (all dropped)"
@@ -71,7 +115,7 @@ def pct(samples: list[float]) -> str:
 
 
 class Bench:
-    def __init__(self) -> None:
+    def __init__(self, clients: int) -> None:
         import rclpy
         from geometry_msgs.msg import TwistStamped
         from rclpy.executors import SingleThreadedExecutor
@@ -82,7 +126,9 @@ class Bench:
         from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS
         from physdyn_ros.srv import PredictTrajectory
 
-        self.node = rclpy.create_node("bench")
+        # the client process as lean as a client can be: no parameter services, as many service clients as used
+        # (every entity is in the wait set the executor rebuilds on each wake-up)
+        self.node = rclpy.create_node("bench", start_parameter_services=False)
         self.cloud = self.node.create_publisher(PointCloud2, "cloud", 2)
         self.state = self.node.create_publisher(ObjectState, "object_state", STATE_QOS)
         self.twist = self.node.create_publisher(TwistStamped, "initial_twist", 10)
@@ -90,7 +136,8 @@ class Bench:
         self.cond = threading.Condition()
         self.node.create_subscription(ShapeFeature, "shape_feature", self._mark("feature"), FEATURE_QOS)
         self.node.create_subscription(PredictedTrajectory, "predicted_trajectory", self._mark("traj"), LATCHED)
-        self.clients = [self.node.create_client(PredictTrajectory, "predict_trajectory") for _ in range(16)]
+        self.clients = [self.node.create_client(PredictTrajectory, "predict_trajectory")
+                        for _ in range(max(1, clients))]
         # One spinning thread: the bench measures the node, not its own GIL contention.
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
@@ -186,7 +233,7 @@ def main() -> int:
         t = time.monotonic()
         suite.start().wait_ready(240)
         print(f"nodes ready in {time.monotonic() - t:.1f} s\n")
-        bench = Bench()
+        bench = Bench(args.clients)
         time.sleep(1.0)  # discovery
 
         # perception: cloud -> feature
@@ -228,27 +275,43 @@ def main() -> int:
             return req
 
         def call(client, req, timeout=30.0):
+            # wait on an Event the future sets when the executor thread completes it: a polling loop (sleep 0.2 ms)
+            # woke 5,000 times a second and took CPU and the GIL from the spinning thread and, on 2 cores, the node
+            done = threading.Event()
             fut = client.call_async(req)
-            deadline = time.monotonic() + timeout
-            while not fut.done():
-                if time.monotonic() > deadline:
-                    return None
-                time.sleep(0.0002)
+            fut.add_done_callback(lambda _: done.set())
+            if not done.wait(timeout):
+                return None
             return fut.result()
 
         c0 = bench.clients[0]
         if not c0.wait_for_service(timeout_sec=30):
             raise RuntimeError("predict_trajectory is not available")
-        rtt, service_failed = [], 0
+        rtt, callback, service_failed = [], [], 0
+        node_pid = next((pr.proc.pid for pr in suite.procs if pr.name == "predictor"), None)
+        cpu0 = (process_cpu(node_pid), time.process_time())
         for _ in range(args.samples):
             t = time.perf_counter()
             res = call(c0, request(), timeout=10.0)
             if res is not None and res.success:
                 rtt.append(time.perf_counter() - t)
+                callback.append(callback_seconds(res.message))
             else:
                 service_failed += 1
                 print(f"  request failed: {res.message if res is not None else 'no answer within 10 s'}")
         print(f"predict_trajectory round trip ({HORIZON} steps):        {pct(rtt)}   failed {service_failed}")
+        node_cpu = process_cpu(node_pid)
+        per_request = (lambda a, b: None if a is None or b is None or not rtt else (b - a) / len(rtt))  # noqa: E731
+        node_cpu_ms = per_request(cpu0[0], node_cpu)
+        bench_cpu_ms = per_request(cpu0[1], time.process_time())
+        callback = [c for c in callback if c is not None]
+        print(f"  of which the node's callback (its response message):  {pct(callback)}")
+        ser, deser = wire_costs(res if res is not None and res.success else None, PredictTrajectory.Response)
+        print(f"  the response's CDR serialization (in the node): {pct(ser)}; deserialization (in the client): "
+              f"{pct(deser)} (this process, CPU time; the rest is DDS transport and the executors on both sides)")
+        if node_cpu_ms is not None and bench_cpu_ms is not None:
+            print(f"  CPU per request: the predictor node's process {1e3 * node_cpu_ms:.2f} ms, this client process "
+                  f"{1e3 * bench_cpu_ms:.2f} ms (all threads)")
 
         # concurrency: N clients, each sending requests back to back
         n = min(args.clients, len(bench.clients))
@@ -276,6 +339,10 @@ def main() -> int:
               f"{sum(answered)}/{total} answered, {sum(failed)} failed or lost")
         print(json.dumps({
             "service_p50_ms": p(rtt, 50), "service_p99_ms": p(rtt, 99), "service_failed": service_failed,
+            "service_callback_p50_ms": p(callback, 50), "response_serialize_ms": p(ser, 50),
+            "response_deserialize_ms": p(deser, 50),
+            "node_cpu_per_request_ms": None if node_cpu_ms is None else round(1e3 * node_cpu_ms, 3),
+            "client_cpu_per_request_ms": None if bench_cpu_ms is None else round(1e3 * bench_cpu_ms, 3),
             "twist_to_traj_p50_ms": p(lat, 50), "twist_to_traj_p99_ms": p(lat, 99), "twists_lost": twists_lost,
             f"clients{n}_req_per_s": round(sum(answered) / wall, 1), f"clients{n}_lost": sum(failed),
             "perception_dds_p50_ms": p(percep, 50), "perception_dds_dropped": max(5, args.samples // 5) - len(percep),
