@@ -30,7 +30,8 @@ from scipy.spatial.transform import Rotation
 
 from . import geometry as geo
 from .conventions import DT
-from .learn.rules import consistent_topple, flat_unless_toppling, settle
+from .learn.rules import consistent_topple, flat_unless_toppling, settle, topple_with_head
+from .learn.support import DESCRIPTOR_DIM, support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -59,6 +60,9 @@ class Trajectory:
     lin_vels: np.ndarray  # (H+1, 3) m/s, world frame
     ang_vels: np.ndarray  # (H+1, 3) rad/s, world frame
     topple_prob: np.ndarray  # (H+1,) probability that the object has toppled by each frame (frame 0: 0)
+    # how far the shape and push lie from the training data (learn/topple.py): > 1 beyond 99.5 % of the training
+    # inputs, a prediction to treat with caution; NaN for models without a topple head
+    novelty: float = float("nan")
 
     @property
     def horizon(self) -> int:
@@ -84,13 +88,15 @@ class TrajectoryBatch:
     lin_vels: np.ndarray  # (B, H+1, 3)
     ang_vels: np.ndarray  # (B, H+1, 3)
     topple_prob: np.ndarray  # (B, H+1)
+    novelty: Optional[np.ndarray] = None  # (B,) see Trajectory.novelty; None for models without a topple head
 
     def __len__(self) -> int:
         return len(self.positions)
 
     def __getitem__(self, i: int) -> Trajectory:
+        novelty = float("nan") if self.novelty is None else float(self.novelty[i])
         return Trajectory(self.dt, self.positions[i], self.orientations[i], self.lin_vels[i], self.ang_vels[i],
-                          self.topple_prob[i])
+                          self.topple_prob[i], novelty)
 
     @property
     def topple_probability(self) -> np.ndarray:
@@ -193,7 +199,11 @@ class Predictor:
         manifest = dataset.get("manifest") or {}
         self.dt: float = float(manifest.get("dt", DT))
         self.num_points: int = int(model.cfg.num_points)
-        self.feature_dim: int = int(model.feature_dim)
+        # the shape feature: the dynamics network's (model.feature_dim numbers), then, for models with a
+        # whole-push topple head, the cloud's support descriptors (learn/topple.py) that head needs
+        self._topple = getattr(model, "topple", None)
+        self._dynamics_dim = int(model.feature_dim)
+        self.feature_dim: int = self._dynamics_dim + (DESCRIPTOR_DIM if self._topple is not None else 0)
         self.max_horizon: int = int(model.cfg.max_horizon)
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
         self._subsets: dict[int, np.ndarray] = {}
@@ -259,9 +269,13 @@ class Predictor:
             encoded = self._model.encode(sub)
             feature = encoded[0].float().cpu().numpy()
             start = canon.centroid.copy()
+            offset = np.zeros(3)
             if self._model.com is not None:
                 offset = self._model.com_offset(encoded)[0].double().cpu().numpy()
                 start = start + c_to_world(offset, float(canon.heading))
+        if self._topple is not None:
+            desc = support_descriptors(sub.cpu().numpy(), offset[None])[0]
+            feature = np.concatenate([feature, desc.astype(np.float32)])
         return ShapeCode(feature=feature, heading=float(canon.heading), centroid=start,
                          half_extents=half, num_points=int(len(pts)), model_id=self.model_id)
 
@@ -381,7 +395,8 @@ class Predictor:
             obs_v = world_to_c(obs["lin_vels"][None], h)
             obs_w = world_to_c(obs["ang_vels"][None], h)
         vw = _yaw_rotate(np.stack([v0, w0], 1), -headings)  # world_to_c of both start velocities at once
-        raw, xs, scales = self._model.rollout_arrays(np.asarray(feats, np.float32), vw[:, 0], vw[:, 1], horizon,
+        raw, xs, scales = self._model.rollout_arrays(np.asarray(feats[:, :self._dynamics_dim], np.float32), vw[:, 0],
+                                                     vw[:, 1], horizon,
                                                      obs_v, obs_w)
         # physical units as model.rollout computes them (float32 products), then float64 in the table frame:
         # per step d_pos, d_rot, vel, angvel as four 3-vectors, turned by the heading at once
@@ -398,11 +413,18 @@ class Predictor:
         ang = np.concatenate([w0[:, None], vec[:, :, 3]], axis=1)
         prob = np.concatenate([np.zeros((len(raw), 1)), 1.0 / (1.0 + np.exp(-raw[..., 12].astype(np.float64)))], axis=1)
         flat_unless_toppling(d_rot[:, k:], ang[:, k:], prob)  # observed steps keep their observed rotations
+        novelty = None
+        if self._topple is not None:
+            feats = np.asarray(feats)
+            head, novelty = self._topple.assess(feats[:, :self._dynamics_dim], feats[:, self._dynamics_dim:],
+                                                vw[:, 0], vw[:, 1])
+            prob = topple_with_head(prob, head, d_rot, ang, k, lambda d: compose_rotations(q0, d))
         settle(d_pos, d_rot, lin, ang, first=k + 1, dt=self.dt)
         p0 = np.asarray(p0, dtype=np.float64)[:, None]
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)
         orientations = compose_rotations(q0, d_rot)
-        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations))
+        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations),
+                               novelty)
 
 
 def _yaw_rotate(vec: np.ndarray, headings: np.ndarray) -> np.ndarray:
@@ -537,7 +559,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"model_id": pred.model_id, "dt": traj.dt, "positions": traj.positions.tolist(),
                           "orientations": traj.orientations.tolist(), "lin_vels": traj.lin_vels.tolist(),
-                          "ang_vels": traj.ang_vels.tolist(), "topple_prob": traj.topple_prob.tolist()}))
+                          "ang_vels": traj.ang_vels.tolist(), "topple_prob": traj.topple_prob.tolist(),
+                          "novelty": None if math.isnan(traj.novelty) else traj.novelty}))
         return 0
     p, q = traj.positions[-1], traj.orientations[-1]
     rot = geo.quat_to_matrix(q)
@@ -550,4 +573,8 @@ def run(args: argparse.Namespace) -> int:
           f"tilt {tilt:.1f} deg")
     print(f"final velocity    [{traj.lin_vels[-1][0]:.4f}, {traj.lin_vels[-1][1]:.4f}, {traj.lin_vels[-1][2]:.4f}] m/s")
     print(f"topple probability {traj.topple_probability:.3f}")
+    if not math.isnan(traj.novelty):
+        note = "  (beyond 99.5 % of the training inputs: unlike what the model was fitted on)" if traj.novelty > 1 \
+            else ""
+        print(f"novelty {traj.novelty:.2f}{note}")
     return 0

@@ -33,7 +33,8 @@ import torch
 from .. import geometry as geo
 from . import frames
 from .model import DynamicsModel
-from .rules import consistent_topple, flat_unless_toppling, settle
+from .rules import consistent_topple, flat_unless_toppling, settle, topple_with_head
+from .support import support_descriptors
 from .windows import SimArrays, sequences
 
 CM = 100.0
@@ -98,6 +99,14 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         vel, angvel = out["vel"].copy(), out["angvel"].copy()
         prob = np.concatenate([np.zeros((len(idx), 1)), 1.0 / (1.0 + np.exp(-out["topple_logit"]))], axis=1)
         flat_unless_toppling(d_rot[:, k:], angvel[:, k:], prob)
+        if model.topple is not None:  # the whole-push topple head, as the Predictor applies it
+            cloud = seq["cloud"].numpy()
+            com = model.com_offset(feature).double().cpu().numpy() if model.com is not None else np.zeros((len(idx), 3))
+            head, _ = model.topple.assess(feature.cpu().numpy(), support_descriptors(cloud, com),
+                                            seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy())
+            p0, q0 = sims.pos[idx, 0], sims.quat[idx, 0]
+            prob = topple_with_head(prob, head, d_rot, angvel, k,
+                                    lambda d: frames.integrate_in_world(heading, p0, q0, d_pos, d)[1])
         settle(d_pos, d_rot, vel, angvel, first=k + 1, dt=sims.dt)
         pos, quat = frames.integrate_in_world(heading, sims.pos[idx, 0], sims.quat[idx, 0], d_pos, d_rot)
         h = heading[:, None]

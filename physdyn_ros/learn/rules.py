@@ -7,18 +7,37 @@ reached zero, a topple probability that disagreed with the predicted poses).
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from ..conventions import DT, REST_ANG_VEL, REST_LIN_VEL, TOPPLE_ANGLE
+
+
+def tilted_past(orientations: np.ndarray) -> np.ndarray:
+    """(B, H+1) bool: the pose's up axis is tilted past TOPPLE_ANGLE (orientations (B, H+1, 4) x, y, z, w)."""
+    x, y = orientations[..., 0], orientations[..., 1]
+    return 1.0 - 2.0 * (x * x + y * y) < np.cos(TOPPLE_ANGLE)  # the up axis' z component (geometry.up_tilt_angle)
 
 
 def consistent_topple(prob: np.ndarray, orientations: np.ndarray) -> np.ndarray:
     """Per-step topple probabilities (B, H+1) that agree with the predicted poses: a topple cannot be undone (the
     probability never decreases along a trajectory), and a predicted pose tilted past TOPPLE_ANGLE has toppled
     (probability 1 from there on)."""
-    x, y = orientations[..., 0], orientations[..., 1]
-    tilted = 1.0 - 2.0 * (x * x + y * y) < np.cos(TOPPLE_ANGLE)  # the up axis' z component (geometry.up_tilt_angle)
-    return np.maximum.accumulate(np.where(tilted, 1.0, prob), axis=1)
+    return np.maximum.accumulate(np.where(tilted_past(orientations), 1.0, prob), axis=1)
+
+
+def whole_push_topple(step_prob: np.ndarray, head: np.ndarray, tilted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step probabilities (B, H+1) whose maximum is the whole-push probability of the topple head (B,), or 1
+    where the roll-out's own poses tilt past TOPPLE_ANGLE (tilted (B, H+1)); the steps keep the per-step
+    network's timing (its running maximum, scaled to reach that probability); frame 0 stays 0. Returns
+    (per step, whole)."""
+    whole = np.maximum(np.asarray(head, dtype=np.float64), tilted.any(axis=1))
+    running = np.maximum.accumulate(np.maximum(step_prob[:, 1:], 1e-12), axis=1)
+    timing = running / running[:, -1:]
+    per_step = np.zeros(step_prob.shape)
+    per_step[:, 1:] = whole[:, None] * timing
+    return per_step, whole
 
 
 def settle(d_pos: np.ndarray, d_rot: np.ndarray, lin: np.ndarray, ang: np.ndarray, first: int = 1,
@@ -59,3 +78,16 @@ def flat_unless_toppling(d_rot: np.ndarray, ang: np.ndarray, prob: np.ndarray,
     d_rot[flat, :, :2] = 0.0
     ang[flat, 1:, :2] = 0.0
     return toppling
+
+
+def topple_with_head(prob: np.ndarray, head: np.ndarray, d_rot: np.ndarray, ang: np.ndarray, first: int,
+                     orientations: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The whole-push topple head's verdict on a roll-out, in place on d_rot / ang (after flat_unless_toppling
+    with the per-step probabilities `prob`): per-step probabilities with the head's maximum (whole_push_topple,
+    a pose tilted past TOPPLE_ANGLE counting as toppled), and no tilt where that maximum is at most 0.5 (the
+    head's "no" also removes a tilt the per-step network allowed). Steps before `first` are observed and kept;
+    orientations(d_rot) integrates the rotation increments to (B, H+1, 4) poses. Returns the per-step
+    probabilities (B, H+1)."""
+    per_step, whole = whole_push_topple(prob, head, tilted_past(orientations(d_rot)))
+    flat_unless_toppling(d_rot[:, first:], ang[:, first:], whole[:, None])
+    return per_step

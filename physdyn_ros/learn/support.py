@@ -1,0 +1,107 @@
+"""Support-polygon descriptors of a cloud and the per-push quantities that decide tipping (numpy; the inputs of
+the whole-push topple head, learn/topple.py).
+
+Computed from the same cloud the encoder sees (frame C, z up, metres): the height of the centre of mass over
+the lowest point, how far the support polygon (the convex hull of the lowest points) reaches from the centre of
+mass in each direction, and the cloud's second moments. Per push: the reach ahead of the push (friction at the
+base tips a sliding object forward over that edge), the potential barrier of tipping over it, the kinetic
+energy. The per-object part runs once per object (one 2-D hull); the per-push part is vectorised.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from ..conventions import GRAVITY
+
+#: Directions (in frame C, evenly spaced from +x) in which the support polygon's reach from the centre of mass
+#: is measured.
+SUPPORT_DIRECTIONS = 16
+#: Per-object descriptors: centre-of-mass height over the lowest point, height, area of the support polygon,
+#: the polygon's reach in each direction, and the cloud's second moments about the centre of mass (x, y, z).
+DESCRIPTOR_DIM = 3 + SUPPORT_DIRECTIONS + 3
+#: Per-push quantities derived from the descriptors and the initial twist (push_quantities).
+PUSH_DIM = 6 + 12
+#: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.
+BASE_BAND_M = 0.003
+BASE_BAND_REL = 0.03
+_INFLATE = 0.001  # m: a support seen as a line or a point becomes a thin polygon (a lying cylinder's edge)
+
+
+def _support_reach(base: np.ndarray, centre: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, float]:
+    """Distance from `centre` (2,) along each unit direction (K, 2) to the edge of the convex hull of `base`
+    (M, 2) (negative where the centre lies outside it), and the hull's area."""
+    pts = base
+    try:
+        hull = ConvexHull(pts)
+    except (QhullError, ValueError):  # a point or a line: inflate it
+        offsets = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=np.float64) * _INFLATE
+        pts = (base[:, None, :] + offsets[None]).reshape(-1, 2)
+        hull = ConvexHull(pts)
+    normals, offset = hull.equations[:, :2], hull.equations[:, 2]  # n . x + offset <= 0 inside
+    slack = -(normals @ centre + offset)  # (E,) >= 0 inside
+    along = normals @ dirs.T  # (E, K)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(along > 1e-9, slack[:, None] / along, np.inf)
+    return t.min(axis=0), float(hull.volume)
+
+
+def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(B, DESCRIPTOR_DIM) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of mass
+    com (B, 3) in the same frame."""
+    cloud = np.asarray(cloud, dtype=np.float64)
+    com = np.asarray(com, dtype=np.float64).reshape(-1, 3)
+    if cloud.ndim != 3 or cloud.shape[0] != com.shape[0] or cloud.shape[2] != 3:
+        raise ValueError(f"clouds must be (B, N, 3) with one centre of mass each, got {cloud.shape}, {com.shape}")
+    angles = np.arange(SUPPORT_DIRECTIONS) * (2.0 * math.pi / SUPPORT_DIRECTIONS)
+    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    out = np.empty((len(cloud), DESCRIPTOR_DIM))
+    for i, (pts, c) in enumerate(zip(cloud, com)):
+        z = pts[:, 2]
+        z0 = float(z.min())
+        height = float(z.max()) - z0
+        base = pts[z < z0 + max(BASE_BAND_M, BASE_BAND_REL * height), :2]
+        reach, area = _support_reach(base, c[:2], dirs)
+        out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
+        out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
+        out[i, 3 + SUPPORT_DIRECTIONS:] = np.mean((pts - c) ** 2, axis=0)
+    return out
+
+
+def _reach_at(reach: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """The support reach (B, K) interpolated (circularly, linearly) at angles (B,) in rad."""
+    k = reach.shape[1]
+    pos = np.mod(angle, 2.0 * math.pi) / (2.0 * math.pi / k)
+    lo = np.floor(pos).astype(np.int64) % k
+    frac = pos - np.floor(pos)
+    rows = np.arange(len(reach))
+    return (1.0 - frac) * reach[rows, lo] + frac * reach[rows, (lo + 1) % k]
+
+
+def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np.ndarray:
+    """(B, PUSH_DIM) per push: the initial twist in C (6) and what decides tipping: speed, tipping and yaw
+    rates, vertical speed, the support's reach ahead of / behind / beside the push and its minimum, the
+    potential barrier of tipping over the front edge (per unit mass), the kinetic energy (per unit mass), their
+    ratio, the friction lever h / reach ahead, and the rate at which sliding tips the object about that edge."""
+    desc = np.asarray(desc, dtype=np.float64)
+    vel = np.asarray(vel, dtype=np.float64).reshape(-1, 3)
+    angvel = np.asarray(angvel, dtype=np.float64).reshape(-1, 3)
+    h = desc[:, 0]
+    reach = desc[:, 3:3 + SUPPORT_DIRECTIONS]
+    gyration2 = desc[:, 3 + SUPPORT_DIRECTIONS:].sum(axis=1)
+    speed = np.linalg.norm(vel[:, :2], axis=1)
+    heading = np.arctan2(vel[:, 1], vel[:, 0])
+    front = _reach_at(reach, heading)
+    back = _reach_at(reach, heading + math.pi)
+    side = np.minimum(_reach_at(reach, heading + 0.5 * math.pi), _reach_at(reach, heading - 0.5 * math.pi))
+    lever = np.maximum(front, 0.0)
+    barrier = GRAVITY * (np.sqrt(h * h + lever * lever) - h)
+    tip_rate = np.linalg.norm(angvel[:, :2], axis=1)
+    kinetic = 0.5 * speed ** 2 + 0.5 * gyration2 * tip_rate ** 2
+    ratio = np.log((kinetic + 1e-6) / (barrier + 1e-6))
+    slide_tip = speed * h / (h * h + lever * lever + 1e-6)
+    return np.concatenate([vel, angvel, np.stack([
+        speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
+        h / (lever + 1e-3), slide_tip], axis=1)], axis=1)

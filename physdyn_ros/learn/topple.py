@@ -1,0 +1,93 @@
+"""Whole-push topple head: will this push topple the object at some point of its motion?
+
+Why a separate head (issue 11): the LSTM's per-step topple logit is trained on 15-frame windows and decides
+from the recurrent state, which generalised poorly to unseen shape families (held-out F1 0.61, half its alarms
+false). Whether a push topples is mostly rigid-body statics and energy: the height of the centre of mass over
+the support polygon, how far that polygon reaches in the direction of the push (friction at the base tips the
+object forward while it slides), and the kinetic energy against the potential barrier of tipping over that
+edge. This head sees those quantities, computed from the same cloud the encoder sees, next to the learned shape
+feature and the initial twist, and predicts one calibrated probability per push. The per-step probabilities of
+a roll-out keep the LSTM's timing, scaled so that their maximum is this probability (rules.whole_push_topple).
+
+The descriptors are numpy (learn/support.py), the head a small ensemble of MLPs (averaging out the fit's
+seed-to-seed spread) whose input standardisation is stored with it. It is fitted after the dynamics network,
+on its frozen features (learn/topple_fit.py, `physdyn fit-topple`), on whole simulations, full and partial
+clouds.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .support import DESCRIPTOR_DIM, PUSH_DIM, push_quantities
+
+#: Novelty 1 is the training inputs' distance at this quantile (issue 11: flag inputs far from the training data).
+NOVELTY_QUANTILE = 0.995
+
+
+def _squash(x: Tensor) -> Tensor:
+    """Signed log: physical inputs span orders of magnitude (mm-scale reaches, 10 m/s pushes)."""
+    return torch.sign(x) * torch.log1p(10.0 * x.abs())
+
+
+class ToppleHead(nn.Module):
+    """Ensemble of small MLPs: [shape feature, squashed descriptors, squashed push quantities] -> probability."""
+
+    mean: Tensor
+    std: Tensor
+
+    def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5) -> None:
+        super().__init__()
+        self.feature_dim = int(feature_dim)
+        self.in_dim = self.feature_dim + DESCRIPTOR_DIM + PUSH_DIM
+        self.members = nn.ModuleList([
+            nn.Sequential(nn.Linear(self.in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                          nn.Linear(hidden, 1)) for _ in range(int(members))])
+        self.register_buffer("mean", torch.zeros(self.in_dim))
+        self.register_buffer("std", torch.ones(self.in_dim))
+        # novelty: the Mahalanobis distance of the standardised input under the training inputs' covariance
+        # (its precision matrix), in units of the training inputs' 99.5th percentile distance (set_novelty)
+        self.register_buffer("precision", torch.eye(self.in_dim))
+        self.register_buffer("novelty_scale", torch.ones(()))
+
+    def raw_inputs(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
+        return torch.cat([feature, _squash(desc), _squash(push)], dim=-1)
+
+    def member_logits(self, x: Tensor) -> Tensor:
+        """(members, B) logits of raw inputs x (B, in_dim), standardised here."""
+        z = (x - self.mean) / self.std
+        return torch.stack([m(z)[:, 0] for m in self.members])
+
+    def set_novelty(self, x: Tensor, quantile: float = NOVELTY_QUANTILE) -> None:
+        """Fit the novelty statistics on the training inputs x (B, in_dim) (raw; mean / std already set)."""
+        z = (x - self.mean) / self.std
+        # shrunk towards the identity (the inputs are standardised): a stable inverse with few samples
+        cov = 0.9 * torch.cov(z.T.double()) + 0.1 * torch.eye(self.in_dim, dtype=torch.float64)
+        self.precision.copy_(torch.linalg.inv(cov).float())
+        self.novelty_scale.copy_(torch.quantile(self._distance(z).double(), quantile).float())
+
+    def _distance(self, z: Tensor) -> Tensor:
+        return torch.einsum("bi,ij,bj->b", z, self.precision, z).clamp_min(0.0).sqrt()
+
+    def novelty(self, x: Tensor) -> Tensor:
+        """(B,) distance of raw inputs x (B, in_dim) from the training inputs: > 1 lies beyond NOVELTY_QUANTILE
+        of them (a shape or push unlike those the model was fitted on)."""
+        return self._distance((x - self.mean) / self.std) / self.novelty_scale
+
+    def forward(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
+        """(B,) probability that the push topples the object."""
+        return torch.sigmoid(self.member_logits(self.raw_inputs(feature, desc, push))).mean(dim=0)
+
+    def assess(self, feature: np.ndarray, desc: np.ndarray, vel: np.ndarray,
+               angvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """numpy in, numpy out: (probability (B,), novelty (B,)) of feature (B, F), desc (B, D), vel / angvel
+        (B, 3) in frame C."""
+        push = push_quantities(desc, vel, angvel)
+        with torch.inference_mode():
+            x = self.raw_inputs(*(torch.tensor(np.asarray(a), dtype=self.mean.dtype, device=self.mean.device)
+                                  for a in (feature, desc, push)))
+            prob = torch.sigmoid(self.member_logits(x)).mean(dim=0)
+            novelty = self.novelty(x)
+        return prob.double().cpu().numpy(), novelty.double().cpu().numpy()
+

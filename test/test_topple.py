@@ -1,0 +1,224 @@
+"""The whole-push topple head (issue 11): support descriptors, the probability rules, fitting, and the
+Predictor / evaluation paths that apply it."""
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from learn_support import random_checkpoint, tiny_dataset
+
+from physdyn_ros import geometry as geo
+from physdyn_ros.conventions import GRAVITY
+from physdyn_ros.learn import rules
+from physdyn_ros.predictor import compose_rotations
+from physdyn_ros.learn.support import DESCRIPTOR_DIM, PUSH_DIM, SUPPORT_DIRECTIONS, push_quantities, \
+    support_descriptors
+
+
+def _surface(mesh: trimesh.Trimesh, n: int = 3000) -> np.ndarray:
+    pts = np.asarray(mesh.sample(n, seed=0) if "seed" in mesh.sample.__code__.co_varnames else mesh.sample(n))
+    return pts - pts.mean(axis=0)
+
+
+def _reach(desc: np.ndarray, degrees: float) -> float:
+    k = int(round(degrees / (360.0 / SUPPORT_DIRECTIONS)))
+    return float(desc[3 + k])
+
+
+def test_box_descriptors_are_its_statics():
+    """A 0.2 x 0.1 x 0.3 m box standing on its base: COM 0.15 m up, the base reaches 0.1 m along x and 0.05 m
+    along y, its area is 0.02 m^2."""
+    pts = _surface(trimesh.creation.box(extents=(0.2, 0.1, 0.3)))
+    com = np.zeros(3)  # the box's centroid is its centre of mass
+    desc = support_descriptors(pts[None], com[None])[0]
+    assert desc.shape == (DESCRIPTOR_DIM,)
+    assert desc[0] == pytest.approx(0.15, abs=0.005) and desc[1] == pytest.approx(0.3, abs=0.005)
+    assert desc[2] == pytest.approx(0.02, rel=0.15)
+    for deg, want in ((0, 0.1), (180, 0.1), (90, 0.05), (270, 0.05)):
+        assert _reach(desc, deg) == pytest.approx(want, abs=0.006), deg
+    assert _reach(desc, 45) == pytest.approx(0.05 * math.sqrt(2), abs=0.008)
+
+
+def test_a_lying_cylinder_rests_on_a_line_and_an_offset_com_lies_outside_its_support():
+    """A cylinder on its side touches the table along a line: the support reaches along the axis, barely across
+    it (a thin strip instead of a failed hull). A centre of mass moved past the base's edge gives a negative reach
+    in that direction."""
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.2, sections=64)
+    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))  # axis along x
+    desc = support_descriptors(_surface(cyl)[None], np.zeros((1, 3)))[0]
+    assert _reach(desc, 0) == pytest.approx(0.1, abs=0.01)
+    assert _reach(desc, 90) < 0.2 * _reach(desc, 0)  # the 3 mm band of a 4 cm radius: 1.5 cm across
+    # a base that is exactly a line (a hull of it fails): a 1 mm strip
+    rng = np.random.default_rng(0)
+    line = np.c_[np.linspace(-0.1, 0.1, 50), np.zeros(50), np.zeros(50)]
+    above = rng.uniform([-0.1, -0.05, 0.05], [0.1, 0.05, 0.1], (200, 3))
+    strip = support_descriptors(np.concatenate([line, above])[None], np.array([[0.0, 0.0, 0.05]]))[0]
+    assert _reach(strip, 0) == pytest.approx(0.101, abs=0.002) and _reach(strip, 90) == pytest.approx(0.001)
+    box = _surface(trimesh.creation.box(extents=(0.1, 0.1, 0.1)))
+    shifted = support_descriptors(box[None], np.array([[0.08, 0.0, 0.0]]))[0]
+    assert _reach(shifted, 0) < -0.02 and _reach(shifted, 180) > 0.1
+
+
+def test_push_quantities_follow_the_tipping_barrier():
+    desc = np.zeros((1, DESCRIPTOR_DIM))
+    desc[0, 0] = 0.1  # centre of mass 10 cm up
+    desc[0, 3:3 + SUPPORT_DIRECTIONS] = 0.05  # a round base of 5 cm radius
+    desc[0, 3 + SUPPORT_DIRECTIONS:] = 0.001
+    q = push_quantities(desc, np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)))[0]
+    assert q.shape == (PUSH_DIM,)
+    speed, front, barrier, kinetic = q[6], q[9], q[13], q[14]
+    assert speed == pytest.approx(1.0) and front == pytest.approx(0.05)
+    assert barrier == pytest.approx(GRAVITY * (math.hypot(0.1, 0.05) - 0.1))
+    assert kinetic == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="one centre of mass each"):
+        support_descriptors(np.zeros((2, 10, 3)), np.zeros((1, 3)))
+
+
+def test_whole_push_probability_is_the_heads_with_the_step_network_timing():
+    step = np.array([[0.0, 0.1, 0.3, 0.2, 0.6, 0.5], [0.0, 0.01, 0.02, 0.02, 0.02, 0.02]])
+    tilted = np.zeros_like(step, dtype=bool)
+    tilted[1, 4:] = True
+    per_step, whole = rules.whole_push_topple(step, np.array([0.2, 0.1]), tilted)
+    assert whole.tolist() == [0.2, 1.0]  # a pose past 45 deg has toppled, whatever the head says
+    assert per_step.max(axis=1).tolist() == pytest.approx([0.2, 1.0])
+    assert np.all(per_step[:, 0] == 0) and np.all(np.diff(per_step, axis=1) >= 0)
+    assert per_step[0, 2] == pytest.approx(0.2 * 0.3 / 0.6)  # the step network's timing, scaled
+
+
+def test_the_heads_no_removes_the_step_networks_tilt():
+    """A roll-out the step network let tilt (its probability > 0.5) keeps the tilt only if the head agrees."""
+    h = 10
+    d_rot = np.tile(np.array([0.02, 0.01, 0.05]), (2, h, 1))  # tilting and turning, under 45 deg in total
+    ang = np.tile(np.array([0.3, 0.15, 0.75]), (2, h + 1, 1))
+    prob = np.full((2, h + 1), 0.9)
+    prob[:, 0] = 0.0
+    out = rules.topple_with_head(prob, np.array([0.1, 0.8]), d_rot, ang, 0,
+                                 lambda d: compose_rotations(np.array([[0.0, 0.0, 0.0, 1.0]] * 2), d))
+    assert np.all(d_rot[0, :, :2] == 0) and np.all(ang[0, 1:, :2] == 0)  # head says no: flat, pure yaw
+    assert np.all(d_rot[0, :, 2] == 0.05)
+    assert np.all(d_rot[1, :, :2] != 0)  # head says yes: the tilt stays
+    assert out[0].max() == pytest.approx(0.1) and out[1].max() == pytest.approx(0.8)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """A tiny random-weight model whose topple head is fitted by `physdyn fit-topple` on the tiny dataset."""
+    from physdyn_ros.learn import topple_fit
+
+    tmp = tmp_path_factory.mktemp("topple")
+    src = random_checkpoint(tmp / "src.pt")
+    out = tmp / "fitted.pt"
+    args = argparse.Namespace(checkpoint=str(src), data=str(tiny_dataset()), out=str(out), max_train=100,
+                              partial=0.5, epochs=3, members=2, seed=0, threads=1)
+    assert topple_fit.run(args) == 0
+    return src, out
+
+
+def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.predictor import Predictor
+
+    src, out = fitted
+    model, ckpt = load_model(out)
+    assert model.topple is not None and len(model.topple.members) == 2
+    assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
+    assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
+    plain, headed = Predictor.load(src), Predictor.load(out)
+    assert headed.feature_dim == plain.feature_dim + DESCRIPTOR_DIM
+    assert headed.model_id != plain.model_id
+    rng = np.random.default_rng(3)
+    cloud = _surface(trimesh.creation.box(extents=(0.08, 0.06, 0.2))) + [0.3, 0.1, 0.1]
+    code = headed.encode(cloud)
+    v = np.c_[rng.uniform(-2, 2, (64, 2)), np.zeros(64)]
+    w = rng.normal(size=(64, 3)) * 2
+    batch = headed.rollout_batch(code, v, w, 30)
+    # the head's probability, straight from the model, is the trajectory's unless a pose tilts past 45 deg
+    dyn = code.feature[:headed._dynamics_dim]
+    heading = code.heading
+    vc, wc = geo.rotate_yaw(v, -heading), geo.rotate_yaw(w, -heading)
+    head, novelty = model.topple.assess(np.tile(dyn, (64, 1)), np.tile(code.feature[headed._dynamics_dim:], (64, 1)),
+                                        vc, wc)
+    assert np.allclose(batch.novelty, novelty) and np.all(novelty > 0)
+    assert headed.rollout(code, v[0], w[0], 30).novelty == pytest.approx(novelty[0])
+    assert math.isnan(plain.rollout(cloud, v[0], w[0], 30).novelty)
+    tilted = rules.tilted_past(batch.orientations).any(axis=1)
+    assert np.allclose(batch.topple_probability[~tilted], head[~tilted], atol=1e-6)
+    assert np.all(batch.topple_probability[tilted] == 1.0)
+    # consistency: no topple predicted -> the object stays on its base (yaw only)
+    calm = batch.topple_probability <= 0.5
+    assert calm.any()
+    assert geo.up_tilt_angle(batch.orientations[calm]).max() < 1e-6
+    # the dynamics network sees only its own part of the feature: positions match the plain model's where both
+    # let the object tilt the same way (no tilt from either)
+    base = plain.rollout_batch(plain.encode(cloud), v, w, 30)
+    same = calm & (base.topple_probability <= 0.5)
+    if same.any():
+        assert np.abs(base.positions[same] - batch.positions[same]).max() < 1e-6
+
+
+def test_the_head_keeps_the_predictor_equivariant_to_yaw(fitted):
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load(fitted[1])
+    cloud = _surface(trimesh.creation.box(extents=(0.1, 0.05, 0.15))) + [0.0, 0.0, 0.075]
+    v, w, psi = np.array([0.8, 0.3, 0.0]), np.array([0.5, -1.0, 3.0]), 0.9
+    a = pred.rollout(cloud, v, w, 30)
+    b = pred.rollout(geo.rotate_yaw(cloud, psi), geo.rotate_yaw(v, psi), geo.rotate_yaw(w, psi), 30)
+    assert abs(a.topple_probability - b.topple_probability) < 1e-4
+    assert np.abs(geo.rotate_yaw(a.positions, psi) - b.positions).max() < 1e-4
+
+
+def test_evaluation_applies_the_head_as_the_predictor_does(fitted):
+    """physdyn evaluate's roll-outs carry the head's probabilities (same rule as the Predictor)."""
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.evaluate import model_rollouts
+    from physdyn_ros.learn.topple_fit import topple_inputs
+    from physdyn_ros.learn.windows import load_sims
+
+    model, _ = load_model(fitted[1])
+    sims = load_sims(tiny_dataset(), ["test"])
+    index = np.arange(min(20, len(sims)))
+    traj = model_rollouts(model, sims, index, 20)
+    data = topple_inputs(model, sims, index, 0.0)
+    with torch.inference_mode():
+        head = model.topple(*(torch.from_numpy(data[k]).float() for k in ("feature", "desc", "push"))).numpy()
+    tilted = rules.tilted_past(traj.quat).any(axis=1)
+    assert np.allclose(traj.topple_prob.max(axis=1)[~tilted], head[~tilted], atol=1e-5)
+
+
+def test_fit_topple_refuses_bad_arguments(tmp_path):
+    from physdyn_ros.learn import topple_fit
+
+    args = argparse.Namespace(checkpoint=str(random_checkpoint(tmp_path / "m.pt")), data=str(tiny_dataset()),
+                              out=str(tmp_path / "o.pt"), max_train=10, partial=0.5, epochs=1, members=1, seed=0,
+                              threads=1)
+    with pytest.raises(ValueError, match="--max-train"):
+        topple_fit.run(args)
+    assert not (tmp_path / "o.pt").exists()
+
+
+def test_novelty_flags_inputs_unlike_the_training_data(fitted):
+    """Novelty 1 is the 99.5th percentile of the training inputs' distance: most training pushes lie below it; a
+    push far faster and a shape far flatter than any in the tiny dataset lie far above."""
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.topple_fit import topple_inputs
+    from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros.predictor import Predictor
+
+    model, _ = load_model(fitted[1])
+    sims = load_sims(tiny_dataset(), ["train"])
+    data = topple_inputs(model, sims, np.arange(len(sims)), 0.0)
+    with torch.inference_mode():
+        x = model.topple.raw_inputs(*(torch.from_numpy(data[k]).float() for k in ("feature", "desc", "push")))
+        novelty = model.topple.novelty(x).numpy()
+    assert np.median(novelty) < 1.0  # (the tiny fit saw 100 pushes, half of them partial views)
+    pred = Predictor.load(fitted[1])
+    box = _surface(trimesh.creation.box(extents=(0.06, 0.06, 0.12))) + [0, 0, 0.06]
+    assert pred.rollout(box, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], 20).novelty < 1.0
+    assert pred.rollout(box, [9.0, 0.0, 0.0], [0.0, 0.0, 60.0], 20).novelty > 1.0
+    plate = _surface(trimesh.creation.box(extents=(0.4, 0.4, 0.004))) + [0, 0, 0.005]
+    assert pred.rollout(plate, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], 20).novelty > 1.0
