@@ -36,6 +36,8 @@ class ToppleHead(nn.Module):
 
     mean: Tensor
     std: Tensor
+    precision: Tensor
+    novelty_scale: Tensor
 
     def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5) -> None:
         super().__init__()
