@@ -35,6 +35,15 @@ SHARD_FIELDS: dict[str, tuple[str, tuple]] = {
 }
 
 
+def _file_mode() -> int:
+    umask = os.umask(0)  # read once at import: os.umask can only be read by setting it
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()
+
+
 def shard_name(index: int) -> str:
     return f"{SHARD_DIR}/shard_{index:05d}.npz"
 
@@ -50,6 +59,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.chmod(fd, _FILE_MODE)  # mkstemp makes the file private (0600); give it the mode open() would
     os.close(fd)
     try:
         yield Path(tmp)
