@@ -125,7 +125,8 @@ def pushes(shipped):
     w[rand] = rng.normal(size=(n, 3))[rand] * [0.5, 0.5, 3.0]
     heading = np.array([codes[i].heading for i in idx])
     f32 = lambda a: torch.from_numpy(np.asarray(a, np.float32))  # noqa: E731
-    feature = f32(np.stack([codes[i].feature for i in idx]))
+    # the dynamics network's part of the shape code (a model with a whole-push topple head appends descriptors)
+    feature = f32(np.stack([codes[i].feature[:shipped._model.feature_dim] for i in idx]))
     obs_v = f32(world_to_c(d["lin_vel"][idx, 1:5], heading[:, None]))
     obs_w = f32(world_to_c(d["ang_vel"][idx, 1:5], heading[:, None]))
     return feature, f32(world_to_c(v, heading)), f32(world_to_c(w, heading)), obs_v, obs_w
@@ -207,11 +208,12 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     from physdyn_ros.learn.rules import consistent_topple, flat_unless_toppling, settle
 
     h = headings[:, None]
+    dim = pred._model.feature_dim  # the dynamics network's part of the shape code
     with torch.inference_mode(False), torch.no_grad():
         fast = pred._model._build_fast()
         f32 = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float32))  # noqa: E731
         vel0, angvel0 = f32(world_to_c(v0, headings)), f32(world_to_c(w0, headings))
-        raw, xs = old_rollout_raw(pred._model, f32(feats), vel0, angvel0, horizon)
+        raw, xs = old_rollout_raw(pred._model, f32(feats[:, :dim]), vel0, angvel0, horizon)
         out = pred._model.denormalize(raw, fast)
         x = xs * fast["in"]
         flat = torch.cat([out["d_pos"], out["d_rot"], x[:, 1:, :3], x[:, 1:, 3:], out["topple_logit"][..., None]],
@@ -222,6 +224,13 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
     d_rot_w, ang_c = c_to_world(d_rot, h), ang  # the rules (issue 11) are not part of the speed-up: applied to both
     flat_unless_toppling(d_rot_w, ang_c, prob)
+    topple = getattr(pred._model, "topple", None)
+    if topple is not None:  # a whole-push topple head (not part of the speed-up either): applied as the Predictor does
+        from physdyn_ros.learn.rules import topple_with_head
+
+        head, _ = topple.assess(feats[:, :dim], feats[:, dim:], vel0.double().numpy(), angvel0.double().numpy())
+        prob = topple_with_head(prob, head, d_rot_w, ang_c, 0, lambda d: integrate_in_world(
+            headings, p0, q0, np.zeros_like(d), world_to_c(d, h))[1])
     settle(d_pos, d_rot_w, lin, ang_c)
     positions, orientations = integrate_in_world(headings, p0, q0, d_pos, world_to_c(d_rot_w, h))
     return positions, orientations, lin, ang, consistent_topple(prob, orientations)
