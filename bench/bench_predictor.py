@@ -164,7 +164,29 @@ def kernel_inputs(pred: Any, shapes: list, v: np.ndarray, w: np.ndarray) -> tupl
 
     headings = np.array([c.heading for c in shapes])
     f32 = lambda a: torch.from_numpy(np.asarray(a, dtype=np.float32))  # noqa: E731
-    return (f32(np.stack([c.feature for c in shapes])), f32(world_to_c(v, headings)), f32(world_to_c(w, headings)))
+    dim = pred._model.feature_dim  # the dynamics network's part of the code (a topple head appends descriptors)
+    return (f32(np.stack([c.feature[:dim] for c in shapes])), f32(world_to_c(v, headings)),
+            f32(world_to_c(w, headings)))
+
+
+def b1_parts(pred: Any, codes: list, cases: list, horizon: int) -> list:
+    """Per case, timers of the parts of a batch-1 Predictor.rollout: the model's roll-out alone
+    (DynamicsModel.rollout_arrays: the numpy kernel with the sliding prior) and, for models with one, the whole-push
+    topple head (learn/topple.py); the rest of Predictor.rollout is input checks, frames, the rules, integration."""
+    feats, v, w = (t.numpy() for t in kernel_inputs(pred, codes, np.stack([c["lin_vel"] for c in cases]),
+                                                     np.stack([c["ang_vel"] for c in cases])))
+    dim = pred._model.feature_dim
+    topple = getattr(pred._model, "topple", None)
+    parts = []
+    for k, code in enumerate(codes):
+        def model(k: int = k) -> Any:
+            return pred._model.rollout_arrays(feats[k:k + 1], v[k:k + 1], w[k:k + 1], horizon)
+
+        def head(k: int = k, c: Any = code) -> Any:
+            return topple.assess(c.feature[None, :dim], c.feature[None, dim:], v[k:k + 1].astype(np.float64),
+                                 w[k:k + 1].astype(np.float64))
+        parts.append((model, None if topple is None else head))
+    return parts
 
 
 def kernel_rollout(pred: Any, inputs: tuple, horizon: int) -> Any:
@@ -248,6 +270,9 @@ def main() -> int:
     fractions: list[float] = []
     kernel_fractions: list[float] = []
     kernel_in = kernel_inputs(pred, shapes, bv, bw)
+    parts = b1_parts(pred, codes[:16], cases[:16], args.horizon)
+    lat_model: list[float] = []
+    lat_head: list[float] = []
     kernel_rollout(pred, kernel_in, args.horizon)
     per_round = max(1, args.repeats // rounds)
     pushes = max(1, args.pybullet_trajectories // rounds)
@@ -263,6 +288,9 @@ def main() -> int:
                 k = (r * per_round + i) % 16
                 lat.append(_timed(lambda: pred.rollout(codes[k], cases[k]["lin_vel"], cases[k]["ang_vel"],
                                                        args.horizon)))
+                lat_model.append(_timed(parts[k][0]))
+                if parts[k][1] is not None:
+                    lat_head.append(_timed(parts[k][1]))
         for i in range(max(1, min(per_round, 100 // rounds))):
             k = i % 16
             full.append(_timed(lambda: pred.rollout(cases[k]["cloud"], cases[k]["lin_vel"], cases[k]["ang_vel"],
@@ -288,13 +316,20 @@ def main() -> int:
     peak = float(max(peaks))
     fraction = float(np.median(fractions))
     kernel_fraction = float(np.median(kernel_fractions))
-    print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+    print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms "
+          "(Predictor.rollout: the shape feature is encoded once per object, not counted)")
+    print(f"  of which the model's roll-out alone (numpy kernel + sliding prior): p50 {pct(lat_model, 50):.2f} ms"
+          + (f"; the whole-push topple head: p50 {pct(lat_head, 50):.2f} ms" if lat_head else "")
+          + "; the rest: input checks, frames, consistency rules, integration")
     print(f"latency, encode ({len(cases[0]['cloud'])} points) + roll-out:        p50 {pct(full, 50):.2f} ms, "
           f"p99 {pct(full, 99):.2f} ms")
-    b1_speedup = pyb_speedup = None
+    b1_speedup = pyb_speedup = ceiling_speedup = needed_fraction = None
+    ceiling_rate = peak * 1e9 / flops  # trajectories/s if every FLOP of the products ran at the matmul peak
     if pyb_ms is not None:
         b1_speedup = pyb_ms / p50
         pyb_speedup = rate * float(np.median(pyb_cpu))
+        ceiling_speedup = ceiling_rate * float(np.median(pyb_cpu))
+        needed_fraction = 60.0 / float(np.median(pyb_cpu)) / ceiling_rate
         print(f"pybullet (simulate_from_state, convex hull, {pyb.config.physics_hz} Hz, 1 thread): {pyb_ms:.2f} ms "
               f"per push ({1e3 / pyb_ms:.0f} trajectories/s); batch-1 roll-out {b1_speedup:.1f}x faster "
               f"(goal >= 5x: {'met' if b1_speedup >= 5 else 'NOT met'})")
@@ -303,6 +338,12 @@ def main() -> int:
           f"{'met' if fraction >= 0.6 else 'NOT met'}; the model alone {kernel_fraction:.0%})"
           + (f"; {pyb_speedup:.0f}x pybullet per core (goal >= 60x: {'met' if pyb_speedup >= 60 else 'NOT met'})"
              if pyb_speedup is not None else ""))
+    if ceiling_speedup is not None:
+        print(f"ceiling at the {precision} peak: {peak:.1f} GFLOP/s / {flops / 1e6:.2f} MFLOP per roll-out = "
+              f"{ceiling_rate:.0f} trajectories/s = {ceiling_speedup:.0f}x pybullet per core "
+              f"({1e3 * float(np.median(pyb_cpu)):.1f} ms CPU per push); 60x would need {needed_fraction:.0%} of the "
+              "peak" + (" (more than the peak: out of reach in this precision on this CPU)" if needed_fraction > 1
+                        else ""))
     if args.batch_threads > 1:
         torch.set_num_threads(args.batch_threads)
         pred.rollout_batch(shapes, bv, bw, args.horizon)
@@ -326,7 +367,10 @@ def main() -> int:
         "batched_speedup_vs_pybullet_per_core": r3(pyb_speedup), "matmul_gflops_1thread": r3(peak),
         "batched_gflops_1thread": r3(rate * flops / 1e9), "batched_fraction_of_peak": r3(fraction),
         "kernel_fraction_of_peak": r3(kernel_fraction),
-        "mflop_per_rollout": r3(flops / 1e6), "msg_build_ms": r3(msg_ms), "batch": args.batch,
+        "mflop_per_rollout": r3(flops / 1e6), "rollout_b1_model_p50_ms": r3(pct(lat_model, 50)),
+        "topple_head_b1_p50_ms": r3(pct(lat_head, 50) if lat_head else None),
+        "ceiling_traj_per_s_1thread": r3(ceiling_rate), "ceiling_speedup_vs_pybullet_per_core": r3(ceiling_speedup),
+        "fraction_of_peak_needed_for_60x": r3(needed_fraction), "msg_build_ms": r3(msg_ms), "batch": args.batch,
         "horizon": args.horizon, "precision": precision, "threads": 1}))
     return 0
 
