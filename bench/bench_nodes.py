@@ -287,7 +287,7 @@ def main() -> int:
         c0 = bench.clients[0]
         if not c0.wait_for_service(timeout_sec=30):
             raise RuntimeError("predict_trajectory is not available")
-        rtt, callback, service_failed = [], [], 0
+        rtt, callback, service_failed, res = [], [], 0, None
         node_pid = next((pr.proc.pid for pr in suite.procs if pr.name == "predictor"), None)
         cpu0 = (process_cpu(node_pid), time.process_time())
         for _ in range(args.samples):
