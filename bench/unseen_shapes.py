@@ -12,7 +12,8 @@ pushes that do not topple) with the baselines: the object stays still, Coulomb s
 pybullet on the cloud's convex hull with friction -20 % / +20 %. Also the centre-of-mass estimate on partial
 views (models with a centre-of-mass head) against the centroid of the visible points.
 Prints the tables; the last line is one JSON object {group: {method: {pos_median, pos_p90, rot_median, rot_p90,
-f1}}, "com_partial": {...}}.
+f1, precision, recall, brier}}, "com_partial": {...}, "novelty": {group: {flagged, median}}} (novelty: models
+with a topple head).
 """
 from __future__ import annotations
 
@@ -41,7 +42,9 @@ def evaluate(ckpt: str, data: str, out: Path, categories: list[str] | None, max_
     overall = json.loads((out / "metrics.json").read_text())["results"]["overall"]
     return {m: {"pos_median": r["final_pos_cm"]["median"], "pos_p90": r["final_pos_cm"]["p90"],
                 "rot_median": r["final_rot_deg"]["median"], "rot_p90": r["final_rot_deg"]["p90"],
-                "f1": (r.get("topple") or {}).get("f1")} for m, r in overall.items()}
+                "f1": (r.get("topple") or {}).get("f1"), "precision": (r.get("topple") or {}).get("precision"),
+                "recall": (r.get("topple") or {}).get("recall"), "brier": (r.get("topple") or {}).get("brier")}
+            for m, r in overall.items()}
 
 
 def com_errors(ckpt: str, data: str, categories: list[str], max_sequences: int) -> dict:
@@ -63,6 +66,26 @@ def com_errors(ckpt: str, data: str, categories: list[str], max_sequences: int) 
         err = 100 * np.linalg.norm(est - seq["com"].numpy(), axis=-1)
         out.update(estimate_median_cm=float(np.median(err)), estimate_p90_cm=float(np.percentile(err, 90)))
     return out
+
+
+def novelty_rates(ckpt: str, data: str, categories: list[str] | None, max_sequences: int,
+                  partial: float = 0.0) -> dict | None:
+    """Share of pushes whose novelty (models with a topple head) exceeds 1, and its median."""
+    import torch
+
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.topple_fit import topple_inputs
+    from physdyn_ros.learn.windows import load_sims
+    model, _ = load_model(ckpt)
+    if model.topple is None:
+        return None
+    sims = load_sims(data, ["test"], categories=categories)
+    index = np.linspace(0, len(sims) - 1, min(max_sequences, len(sims))).astype(np.int64)
+    d = topple_inputs(model, sims, index, partial, view_seed=7)
+    with torch.inference_mode():
+        x = model.topple.raw_inputs(*(torch.from_numpy(d[k]).float() for k in ("feature", "desc", "push")))
+        novelty = model.topple.novelty(x).numpy()
+    return {"flagged": float(np.mean(novelty > 1)), "median": float(np.median(novelty))}
 
 
 def main() -> int:
@@ -88,12 +111,20 @@ def main() -> int:
     for name, data, cats, baselines, partial in plan:
         result[name] = evaluate(args.checkpoint, data, args.out / name, cats, args.max_sequences, baselines, partial)
         print(f"\n{name} ({args.max_sequences} sequences at most; final pose after 4 s, pushes that do not topple)")
-        print(f"{'method':<18} {'pos cm med / p90':>18} {'rot deg med / p90':>19} {'topple F1':>9}")
+        print(f"{'method':<18} {'pos cm med / p90':>18} {'rot deg med / p90':>19} {'topple F1 (P / R)':>19} "
+              f"{'Brier':>6}")
         for m, r in result[name].items():
-            f1 = "-" if r["f1"] is None else f"{r['f1']:.3f}"
+            f1 = "-" if r["f1"] is None else f"{r['f1']:.3f} ({r['precision'] or 0:.2f} / {r['recall'] or 0:.2f})"
+            brier = "-" if r["brier"] is None else f"{r['brier']:.3f}"
             print(f"{m:<18} {r['pos_median']:>8.2f} / {r['pos_p90']:<7.2f} {r['rot_median']:>8.2f} / "
-                  f"{r['rot_p90']:<7.2f} {f1:>9}")
+                  f"{r['rot_p90']:<7.2f} {f1:>19} {brier:>6}")
     result["com_partial"] = com_errors(args.checkpoint, args.data, held_out, args.max_sequences)
+    novelty = {name: novelty_rates(args.checkpoint, data, cats, args.max_sequences, partial)
+               for name, data, cats, _, partial in plan}
+    if all(v is not None for v in novelty.values()):
+        result["novelty"] = novelty
+        print("\nnovelty > 1 (beyond 99.5 % of the training inputs): " + ", ".join(
+            f"{name} {100 * v['flagged']:.1f} % (median {v['median']:.2f})" for name, v in novelty.items()))
     print(f"\ncentre of mass on partial views of held-out families: {result['com_partial']}")
     print(json.dumps(result))
     return 0

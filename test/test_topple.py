@@ -222,3 +222,25 @@ def test_novelty_flags_inputs_unlike_the_training_data(fitted):
     assert pred.rollout(box, [9.0, 0.0, 0.0], [0.0, 0.0, 60.0], 20).novelty > 1.0
     plate = _surface(trimesh.creation.box(extents=(0.4, 0.4, 0.004))) + [0, 0, 0.005]
     assert pred.rollout(plate, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], 20).novelty > 1.0
+
+
+def test_numpy_inference_equals_the_torch_head(fitted):
+    """assess (numpy, what the Predictor runs) gives the torch module's probability and novelty."""
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.topple_fit import topple_inputs
+    from physdyn_ros.learn.windows import load_sims
+
+    model, _ = load_model(fitted[1])
+    sims = load_sims(tiny_dataset(), ["test"])
+    d = topple_inputs(model, sims, np.arange(min(40, len(sims))), 0.5)
+    vel, angvel = d["push"][:, :3], d["push"][:, 3:6]
+    prob, novelty = model.topple.assess(d["feature"], d["desc"], vel, angvel)
+    with torch.no_grad():
+        args = [torch.from_numpy(d[k]).double() for k in ("feature", "desc", "push")]
+        head = model.topple.double()
+        want = head(*args).numpy()
+        want_novelty = head.novelty(head.raw_inputs(*args)).numpy()
+    assert np.allclose(prob, want, atol=1e-9) and np.allclose(novelty, want_novelty, rtol=1e-6)
+    with torch.no_grad():  # a changed weight is seen (the numpy copy is rebuilt)
+        model.topple.members[0][4].bias += 5.0
+    assert np.all(model.topple.assess(d["feature"], d["desc"], vel, angvel)[0] > prob)

@@ -175,6 +175,18 @@ def topple_scores(pred: np.ndarray, true: np.ndarray) -> dict[str, Any]:
             "recall": recall, "f1": f1, "tp": tp, "fp": fp, "fn": fn, "tn": tn}
 
 
+def calibration(prob: np.ndarray, true: np.ndarray, bins: int = 10) -> dict[str, Any]:
+    """Brier score and reliability table (per probability bin: count, mean predicted, observed frequency) of
+    whole-trajectory topple probabilities against what happened."""
+    prob, true = np.asarray(prob, dtype=np.float64), np.asarray(true, dtype=bool)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.digitize(prob, edges) - 1, 0, bins - 1)
+    table = [{"bin": f"{edges[b]:.1f}-{edges[b + 1]:.1f}", "n": int(np.sum(which == b)),
+              "predicted": float(prob[which == b].mean()) if np.any(which == b) else None,
+              "observed": float(true[which == b].mean()) if np.any(which == b) else None} for b in range(bins)]
+    return {"brier": float(np.mean((prob - true) ** 2)) if len(prob) else None, "reliability": table}
+
+
 def _masked_mean(err: np.ndarray, mask: np.ndarray) -> Optional[float]:
     vals = err[mask & np.isfinite(err)]
     return float(vals.mean()) if vals.size else None
@@ -193,6 +205,8 @@ def summarize_method(traj: Trajectories, gt: Trajectories, moving: np.ndarray, n
     res: dict[str, Any] = {"sequences": int(len(moving)), "rollout_sequences": int(never_toppled.sum())}
     if single is not None:
         res["single_step"] = {k: _masked_mean(v, moving) for k, v in single.items()}
+        # as the original code averaged: every step of the horizon, the (zero-error) steps at rest included
+        res["single_step_all_steps"] = {k: _masked_mean(v, np.ones_like(moving)) for k, v in single.items()}
     roll = change_errors(changes(traj), changes(gt))
     sel = moving & never_toppled[:, None]
     res["rollout_step"] = {k: _masked_mean(v, sel) for k, v in roll.items()}
@@ -205,6 +219,7 @@ def summarize_method(traj: Trajectories, gt: Trajectories, moving: np.ndarray, n
         if never_toppled.any() else []
     if traj.topple_prob is not None:
         res["topple"] = topple_scores(np.any(traj.topple_prob[:, 1:] > 0.5, axis=1), toppled)
+        res["topple"].update(calibration(traj.topple_prob[:, 1:].max(axis=1), toppled))
     return res
 
 
@@ -253,6 +268,15 @@ def markdown_report(report: dict[str, Any]) -> str:
                 s = r["single_step"]
                 cells = " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
                 lines.append(f"| {g} | {m} | {cells} |")
+    lines += ["", "Averaged as the original code did (every step of the horizon, the steps at rest included; "
+              "the table above averages the steps in motion only):", "",
+              "| group | method | v | w | P | abs theta | axis |", "|---|---|---|---|---|---|---|"]
+    for g, res in groups:
+        for m, r in res.items():
+            if "single_step_all_steps" in r:
+                s = r["single_step_all_steps"]
+                cells = " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
+                lines.append(f"| {g} | {m} | {cells} |")
     lines += ["", "## Roll-out (sequences without toppling)", "",
               "| group | method | n | v | w | P | abs theta | axis | final P cm (median / p90) "
               "| final rot deg (median / p90) |",
@@ -266,14 +290,22 @@ def markdown_report(report: dict[str, Any]) -> str:
                          + f" | {_fmt(fp['median'], 2)} / {_fmt(fp['p90'], 2)}"
                          + f" | {_fmt(fr['median'], 2)} / {_fmt(fr['p90'], 2)} |")
     lines += ["", "## Topple classification of whole trajectories (all sequences)", "",
-              "| group | method | n | toppled | accuracy | precision | recall | F1 |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| group | method | n | toppled | accuracy | precision | recall | F1 | Brier |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for g, res in groups:
         for m, r in res.items():
             if "topple" in r:
                 t = r["topple"]
                 lines.append(f"| {g} | {m} | {t['n']} | {t['toppled']} | {_fmt(t['accuracy'])} | "
-                             f"{_fmt(t['precision'])} | {_fmt(t['recall'])} | {_fmt(t['f1'])} |")
+                             f"{_fmt(t['precision'])} | {_fmt(t['recall'])} | {_fmt(t['f1'])} | "
+                             f"{_fmt(t.get('brier'))} |")
+    overall = report["results"]["overall"]
+    for m, r in overall.items():
+        if "topple" in r and r["topple"].get("reliability"):
+            lines += ["", f"Reliability of the {m}'s topple probability (overall; max over the trajectory):", "",
+                      "| probability | n | mean predicted | observed toppled |", "|---|---|---|---|"]
+            lines += [f"| {b['bin']} | {b['n']} | {_fmt(b['predicted'])} | {_fmt(b['observed'])} |"
+                      for b in r["topple"]["reliability"] if b["n"]]
     return "\n".join(lines) + "\n"
 
 

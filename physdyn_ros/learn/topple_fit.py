@@ -15,6 +15,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 import torch
 
+from .evaluate import calibration
 from .model import DynamicsModel
 from .support import push_quantities, support_descriptors
 from .topple import ToppleHead
@@ -43,20 +44,15 @@ def _join(*sets: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {k: np.concatenate([s[k] for s in sets]) for k in sets[0]}
 
 
-def scores(prob: np.ndarray, label: np.ndarray, threshold: float = 0.5, bins: int = 10) -> dict[str, Any]:
-    """F1, precision, recall, Brier score and a reliability table (predicted vs observed frequency per bin)."""
+def scores(prob: np.ndarray, label: np.ndarray, threshold: float = 0.5) -> dict[str, Any]:
+    """F1, precision, recall at `threshold`, Brier score and reliability table (evaluate.calibration)."""
     pred, true = prob > threshold, label > 0.5
     tp, fp, fn = int(np.sum(pred & true)), int(np.sum(pred & ~true)), int(np.sum(~pred & true))
     precision = tp / (tp + fp) if tp + fp else float("nan")
     recall = tp / (tp + fn) if tp + fn else float("nan")
     f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
-    edges = np.linspace(0.0, 1.0, bins + 1)
-    which = np.clip(np.digitize(prob, edges) - 1, 0, bins - 1)
-    reliability = [{"bin": f"{edges[b]:.1f}-{edges[b + 1]:.1f}", "n": int(np.sum(which == b)),
-                    "predicted": float(prob[which == b].mean()) if np.any(which == b) else None,
-                    "observed": float(true[which == b].mean()) if np.any(which == b) else None} for b in range(bins)]
     return {"n": int(len(prob)), "positives": int(true.sum()), "f1": f1, "precision": precision, "recall": recall,
-            "brier": float(np.mean((prob - true) ** 2)), "reliability": reliability}
+            **calibration(prob, true)}
 
 
 def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
