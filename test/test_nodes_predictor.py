@@ -394,3 +394,23 @@ def test_live_parameters_are_validated(rclpy_init, predictor):
     assert node.get_parameter("horizon").value == 60
     with pytest.raises(ValueError, match="initial_pose_source must be one of object_state, shape_feature"):
         predictor(initial_pose_source="tracker")
+
+
+def test_predictions_carry_their_novelty(rclpy_init, predictor):
+    """issue 11: a prediction says how far its input lies from the training data. The shipped model (with a
+    topple head) gives a finite novelty under 1 for an ordinary push of a small box and over 1 for a 4.9 m/s push
+    (faster than any it was trained on); a model without the head says NaN (unknown)."""
+    from physdyn_ros.resources import DEFAULT_MODEL
+
+    box = (RNG.uniform(-1, 1, (800, 3)) * (0.04, 0.03, 0.06) + (0.2, 0.1, 0.06)).astype(np.float32)
+    node = predictor(model_path=str(DEFAULT_MODEL))
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        usual = call(c.srv, request(cloud=xyz_to_cloud(box, "world"), position=(0.2, 0.1, 0.06)))
+        wild = call(c.srv, request(cloud=xyz_to_cloud(box, "world"), position=(0.2, 0.1, 0.06), v=(4.9, 0, 0)))
+    assert usual.success and wild.success, (usual.message, wild.message)
+    assert 0 < usual.trajectory.novelty < 1 < wild.trajectory.novelty
+    plain, c = predictor(), Client(rclpy_init)
+    with Spinner(plain, c.node):
+        res = call(c.srv, request(cloud=xyz_to_cloud(box, "world"), position=(0.2, 0.1, 0.06)))
+    assert res.success and math.isnan(res.trajectory.novelty)

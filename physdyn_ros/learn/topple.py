@@ -26,6 +26,7 @@ from .support import DESCRIPTOR_DIM, PUSH_DIM, push_quantities
 
 #: Novelty 1 is the training inputs' distance at this quantile (issue 11: flag inputs far from the training data).
 NOVELTY_QUANTILE = 0.995
+RANGE_MARGIN = 1.05
 
 
 def _squash(x: Tensor) -> Tensor:
@@ -40,6 +41,8 @@ class ToppleHead(nn.Module):
     std: Tensor
     precision: Tensor
     novelty_scale: Tensor
+    range_centre: Tensor
+    range_radius: Tensor
 
     def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5) -> None:
         super().__init__()
@@ -50,10 +53,14 @@ class ToppleHead(nn.Module):
                           nn.Linear(hidden, 1)) for _ in range(int(members))])
         self.register_buffer("mean", torch.zeros(self.in_dim))
         self.register_buffer("std", torch.ones(self.in_dim))
-        # novelty: the Mahalanobis distance of the standardised input under the training inputs' covariance
-        # (its precision matrix), in units of the training inputs' 99.5th percentile distance (set_novelty)
+        # novelty (set_novelty): the larger of (a) the Mahalanobis distance of the standardised input under the
+        # training inputs' covariance (its precision matrix), in units of the training inputs' 99.5th percentile
+        # distance: an unusual combination; (b) how far any one input lies outside the training inputs' range
+        # (centre +- radius, 5 % wider than min..max): a speed, a vertical velocity or a size never trained on
         self.register_buffer("precision", torch.eye(self.in_dim))
         self.register_buffer("novelty_scale", torch.ones(()))
+        self.register_buffer("range_centre", torch.zeros(self.in_dim))
+        self.register_buffer("range_radius", torch.full((self.in_dim,), float("inf")))
         self._np: Optional[dict[str, np.ndarray]] = None
         self._np_key: Optional[tuple] = None
 
@@ -72,14 +79,19 @@ class ToppleHead(nn.Module):
         cov = 0.9 * torch.cov(z.T.double()) + 0.1 * torch.eye(self.in_dim, dtype=torch.float64)
         self.precision.copy_(torch.linalg.inv(cov).float())
         self.novelty_scale.copy_(torch.quantile(self._distance(z).double(), quantile).float())
+        lo, hi = x.min(dim=0).values, x.max(dim=0).values
+        self.range_centre.copy_(0.5 * (lo + hi))
+        self.range_radius.copy_((0.5 * RANGE_MARGIN * (hi - lo)).clamp_min(1e-6))
 
     def _distance(self, z: Tensor) -> Tensor:
         return torch.einsum("bi,ij,bj->b", z, self.precision, z).clamp_min(0.0).sqrt()
 
     def novelty(self, x: Tensor) -> Tensor:
-        """(B,) distance of raw inputs x (B, in_dim) from the training inputs: > 1 lies beyond NOVELTY_QUANTILE
-        of them (a shape or push unlike those the model was fitted on)."""
-        return self._distance((x - self.mean) / self.std) / self.novelty_scale
+        """(B,) how far raw inputs x (B, in_dim) lie from the training inputs: > 1 beyond NOVELTY_QUANTILE of
+        their Mahalanobis distances or outside their range (a shape or push unlike those the model was fitted on)."""
+        combined = self._distance((x - self.mean) / self.std) / self.novelty_scale
+        outside = ((x - self.range_centre).abs() / self.range_radius).max(dim=-1).values
+        return torch.maximum(combined, outside)
 
     def forward(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
         """(B,) probability that the push topples the object."""
@@ -102,7 +114,9 @@ class ToppleHead(nn.Module):
                         "b2": stack(2, "bias"), "w3": stack(4, "weight")[:, 0], "b3": stack(4, "bias")[:, 0],
                         "mean": self.mean.double().cpu().numpy(), "std": self.std.double().cpu().numpy(),
                         "precision": self.precision.double().cpu().numpy(),
-                        "scale": self.novelty_scale.double().cpu().numpy()}
+                        "scale": self.novelty_scale.double().cpu().numpy(),
+                        "centre": self.range_centre.double().cpu().numpy(),
+                        "radius": self.range_radius.double().cpu().numpy()}
             self._np_key = key
         return self._np
 
@@ -114,11 +128,13 @@ class ToppleHead(nn.Module):
         push = push_quantities(desc, vel, angvel)
         squashed = np.concatenate([desc, push], axis=1)
         squashed = np.sign(squashed) * np.log1p(10.0 * np.abs(squashed))
-        z = (np.concatenate([np.asarray(feature, dtype=np.float64), squashed], axis=1) - w["mean"]) / w["std"]
+        x = np.concatenate([np.asarray(feature, dtype=np.float64), squashed], axis=1)
+        z = (x - w["mean"]) / w["std"]
         members = len(w["b3"])
         h1 = np.maximum(z @ w["w1"] + w["b1"], 0.0).reshape(len(z), members, -1)  # (B, M, H)
         h2 = np.maximum(np.einsum("bmi,mij->bmj", h1, w["w2"]) + w["b2"], 0.0)
         logits = np.einsum("bmj,mj->bm", h2, w["w3"]) + w["b3"]
         prob = np.mean(1.0 / (1.0 + np.exp(-logits)), axis=1)
-        novelty = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", z, w["precision"], z), 0.0)) / w["scale"]
+        combined = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", z, w["precision"], z), 0.0)) / w["scale"]
+        novelty = np.maximum(combined, np.max(np.abs(x - w["centre"]) / w["radius"], axis=1))
         return prob, novelty

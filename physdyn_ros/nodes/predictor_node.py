@@ -443,6 +443,7 @@ class PredictorNode(ManagedNode):
             self._fail(f"internal error: {type(exc).__name__}: {exc}")
             return
         out = trajectory_to_msg(traj, self.table_frame, msg.header.stamp, object_id, self.model_id)
+        self._warn_novel(object_id, traj.novelty)
         self.publish(out, feat)
         self.predictions += 1
         self._latency_ms.append(1e3 * (time.monotonic() - t_start))
@@ -534,6 +535,13 @@ class PredictorNode(ManagedNode):
         object_id = self.target_object(req.object_id)
         return object_id, None, self.shape_code(self.select_feature(object_id, stamp_ns))
 
+    def _warn_novel(self, object_id: str, novelty: float) -> None:
+        """A throttled warning when a prediction's input lies beyond 99.5 % of the training inputs (the message
+        carries the number: PredictedTrajectory.novelty)."""
+        if novelty > 1.0:
+            self._warn_log(f"the prediction for '{object_id}' lies outside the model's training data (novelty "
+                           f"{novelty:.1f} > 1): treat it with caution", "novel input")
+
     def refuse(self, service: str, res, exc: Exception):
         """A failed response with the reason: bad inputs (ValueError) are counted, anything else is logged."""
         if isinstance(exc, ValueError):  # RequestError, PlanningError or the Predictor refusing an input
@@ -572,6 +580,7 @@ class PredictorNode(ManagedNode):
         stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
         res.trajectory = trajectory_to_msg(traj, self.table_frame, stamp, object_id, self.model_id,
                                            steps_in=len(req.observed))
+        self._warn_novel(object_id, traj.novelty)
         if req.include_path:
             res.path = msg_to_path(res.trajectory)
         res.topple_probability = res.trajectory.topple_probability

@@ -81,7 +81,8 @@ def trajectory_to_msg(traj: TrajectoryLike, frame_id: str, stamp: Time, object_i
                   for r, s, ns_, top in zip(rows, sec.tolist(), nanosec.tolist(), toppled)]
     return PredictedTrajectory(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
                                model_id=model_id, time_step=duration_from_sec(traj.dt), steps_in=int(steps_in),
-                               states=states, topple_probability=float(prob.max()) if prob.size else 0.0)
+                               states=states, topple_probability=float(prob.max()) if prob.size else 0.0,
+                               novelty=float(getattr(traj, "novelty", math.nan)))
 
 
 _COS_TOPPLE = math.cos(TOPPLE_ANGLE)
