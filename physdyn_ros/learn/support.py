@@ -71,13 +71,17 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
 
 
 def _reach_at(reach: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """The support reach (B, K) interpolated (circularly, linearly) at angles (B,) in rad."""
+    """The support reach (B, K) interpolated (circularly, linearly) at angles (B, A) in rad: (B, A)."""
     k = reach.shape[1]
-    pos = np.mod(angle, 2.0 * math.pi) / (2.0 * math.pi / k)
-    lo = np.floor(pos).astype(np.int64) % k
-    frac = pos - np.floor(pos)
-    rows = np.arange(len(reach))
+    pos = np.mod(angle, 2.0 * math.pi) * (k / (2.0 * math.pi))
+    lo = np.floor(pos)
+    frac = pos - lo
+    lo = lo.astype(np.int64) % k
+    rows = np.arange(len(reach))[:, None]
     return (1.0 - frac) * reach[rows, lo] + frac * reach[rows, (lo + 1) % k]
+
+
+_QUARTERS = np.array([0.0, math.pi, 0.5 * math.pi, -0.5 * math.pi])  # ahead, behind, left, right of the push
 
 
 def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np.ndarray:
@@ -93,9 +97,8 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     gyration2 = desc[:, 3 + SUPPORT_DIRECTIONS:].sum(axis=1)
     speed = np.linalg.norm(vel[:, :2], axis=1)
     heading = np.arctan2(vel[:, 1], vel[:, 0])
-    front = _reach_at(reach, heading)
-    back = _reach_at(reach, heading + math.pi)
-    side = np.minimum(_reach_at(reach, heading + 0.5 * math.pi), _reach_at(reach, heading - 0.5 * math.pi))
+    ahead, back, left, right = _reach_at(reach, heading[:, None] + _QUARTERS).T
+    front, side = ahead, np.minimum(left, right)
     lever = np.maximum(front, 0.0)
     barrier = GRAVITY * (np.sqrt(h * h + lever * lever) - h)
     tip_rate = np.linalg.norm(angvel[:, :2], axis=1)

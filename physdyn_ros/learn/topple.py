@@ -16,7 +16,7 @@ clouds.
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 import torch
@@ -62,6 +62,7 @@ class ToppleHead(nn.Module):
         self.register_buffer("range_centre", torch.zeros(self.in_dim))
         self.register_buffer("range_radius", torch.full((self.in_dim,), float("inf")))
         self._np: Optional[dict[str, np.ndarray]] = None
+        self._np_tensors: Optional[list[Tensor]] = None
         self._np_key: Optional[tuple] = None
 
     def raw_inputs(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
@@ -97,11 +98,16 @@ class ToppleHead(nn.Module):
         """(B,) probability that the push topples the object."""
         return torch.sigmoid(self.member_logits(self.raw_inputs(feature, desc, push))).mean(dim=0)
 
+    def _apply(self, fn: Any, recurse: bool = True) -> "ToppleHead":
+        self._np_tensors, self._np = None, None  # .to() / .double() replace the buffers: rebuild the copy
+        return super()._apply(fn, recurse)
+
     def _numpy(self) -> dict[str, np.ndarray]:
         """The weights as stacked numpy arrays, rebuilt when a parameter or buffer changes (inference runs in
         numpy: at batch 1 torch's per-call overhead cost 1.4-2.4 ms per roll-out, bench/bench_predictor.py)."""
-        tensors = list(self.parameters()) + list(self.buffers())
-        key = tuple((t.data_ptr(), t._version) for t in tensors)
+        if self._np_tensors is None:  # walking the module tree on every call cost 0.3 ms
+            self._np_tensors = list(self.parameters()) + list(self.buffers())
+        key = tuple((t.data_ptr(), t._version) for t in self._np_tensors)
         if self._np is None or self._np_key != key:
             def stack(layer: int, what: str) -> np.ndarray:
                 return torch.stack([getattr(list(m.children())[layer], what).detach()
