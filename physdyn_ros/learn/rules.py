@@ -86,8 +86,12 @@ def topple_with_head(prob: np.ndarray, head: np.ndarray, d_rot: np.ndarray, ang:
     with the per-step probabilities `prob`): per-step probabilities with the head's maximum (whole_push_topple,
     a pose tilted past TOPPLE_ANGLE counting as toppled), and no tilt where that maximum is at most 0.5 (the
     head's "no" also removes a tilt the per-step network allowed). Steps before `first` are observed and kept;
-    orientations(d_rot) integrates the rotation increments to (B, H+1, 4) poses. Returns the per-step
-    probabilities (B, H+1)."""
-    per_step, whole = whole_push_topple(prob, head, tilted_past(orientations(d_rot)))
+    orientations(d_rot) integrates the rotation increments to (B, H+1, 4) poses (called only when some row
+    tilts). Returns the per-step probabilities (B, H+1)."""
+    tilted = np.zeros(prob.shape, dtype=bool)
+    free = np.any(d_rot[..., :2] != 0.0, axis=(1, 2))  # rows the step network let tilt (the others stay level)
+    if free.any():
+        tilted[free] = tilted_past(orientations(d_rot)[free])
+    per_step, whole = whole_push_topple(prob, head, tilted)
     flat_unless_toppling(d_rot[:, first:], ang[:, first:], whole[:, None])
     return per_step
