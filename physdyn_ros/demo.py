@@ -480,7 +480,7 @@ def plot(results: list[PushResult], path: Path, model_id: str) -> None:
                frameon=False)
     fig.suptitle(f"physdyn demo, model {model_id}: top views, {len(results[0].true_xy) - 1} steps of 1/15 s; left: "
                  "each table, right: each push (at one scale)\n" + summary(results), fontsize=10)
-    fig.tight_layout(rect=(0, 0.04, 1, 0.96))
+    fig.tight_layout(rect=(0, 0.04, 1, 0.96), h_pad=4.0)  # room for the three-line titles of the next row
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
