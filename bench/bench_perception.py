@@ -164,15 +164,20 @@ def main() -> int:
         feats, _, reason = node.process(msg)
         wall.append(1e3 * (time.perf_counter() - t))
         cpu.append(1e3 * (time.process_time() - c))
+    has_com = node.predictor.estimates_com
     node.destroy_node()
     found = np.array([[f.centroid.x, f.centroid.y, f.centroid.z] for f in feats]).reshape(-1, 3)
-    err = [float(np.linalg.norm(found - c, axis=1).min()) if len(found) else float("inf") for c in scene.centroids]
+    # ShapeFeature.centroid is the roll-out start: the estimated centre of mass for models with a centre-of-mass
+    # head (the shipped one), else the visible points' centroid; compare it with what it estimates
+    reference = scene.centres if has_com else scene.centroids
+    err = [float(np.linalg.norm(found - c, axis=1).min()) if len(found) else float("inf") for c in reference]
     result.update(p50_ms_100k=round(pct(wall, 50), 2), p99_ms_100k=round(pct(wall, 99), 2),
                   cpu_p50_ms_100k=round(pct(cpu, 50), 2), objects_expected=len(scene.objects),
                   objects_found=len(feats), max_centroid_error_cm=round(100 * max(err), 3))
     print(f"in process, 100k points, {len(scene.objects)} objects, camera frame: p50 {pct(wall, 50):.1f} ms, "
           f"p99 {pct(wall, 99):.1f} ms wall; p50 {pct(cpu, 50):.1f} ms CPU; {len(feats)} objects found, "
-          f"largest centroid error {100 * max(err):.2f} cm")
+          f"largest centroid error {100 * max(err):.2f} cm (against the true centres of mass)"
+          if has_com else f"largest centroid error {100 * max(err):.2f} cm")
 
     # 2. DDS, another process
     sent, received = dense_clouds(dict(os.environ))

@@ -208,6 +208,12 @@ class Predictor:
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
         self._subsets: dict[int, np.ndarray] = {}
 
+    @property
+    def estimates_com(self) -> bool:
+        """True if ShapeCode.centroid is the model's centre-of-mass estimate (a centre-of-mass head), False if
+        it is the centroid of the points."""
+        return self._model.com is not None
+
     @classmethod
     def load(cls, path: Union[str, os.PathLike, None] = None, device: str = "cpu",
              threads: Optional[int] = None) -> "Predictor":
@@ -256,28 +262,37 @@ class Predictor:
 
     def encode(self, cloud: Any) -> ShapeCode:
         """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred)."""
+        return self.encode_many([cloud])[0]
+
+    def encode_many(self, clouds: Sequence[Any]) -> list[ShapeCode]:
+        """Shape codes of several clouds (each (N_i, 3), table frame) with one pass of the encoder: what a table
+        with several objects costs (perception), about one encoder call instead of one per object. Each code
+        equals encode(cloud) to float32 rounding."""
         import torch
 
         from .learn.frames import c_to_world, canonicalize_cloud
 
-        pts = check_cloud(cloud)
-        canon = canonicalize_cloud(pts)
-        local = canon.points
-        half = 0.5 * (local.max(axis=0) - local.min(axis=0))
-        sub = torch.from_numpy(local[self._subset(len(pts))].astype(np.float32))[None].to(self._device)
+        if not len(clouds):
+            return []
+        pts = [check_cloud(c) for c in clouds]
+        canon = [canonicalize_cloud(p) for p in pts]
+        local = [c.points for c in canon]
+        sub = np.stack([loc[self._subset(len(p))] for loc, p in zip(local, pts)]).astype(np.float32)
         with torch.inference_mode():
-            encoded = self._model.encode(sub)
-            feature = encoded[0].float().cpu().numpy()
-            start = canon.centroid.copy()
-            offset = np.zeros(3)
-            if self._model.com is not None:
-                offset = self._model.com_offset(encoded)[0].double().cpu().numpy()
-                start = start + c_to_world(offset, float(canon.heading))
+            encoded = self._model.encode(torch.from_numpy(sub).to(self._device))
+            features = encoded.float().cpu().numpy()
+            offsets = (self._model.com_offset(encoded).double().cpu().numpy() if self._model.com is not None
+                       else np.zeros((len(pts), 3)))
         if self._topple is not None:
-            desc = support_descriptors(sub.cpu().numpy(), offset[None])[0]
-            feature = np.concatenate([feature, desc.astype(np.float32)])
-        return ShapeCode(feature=feature, heading=float(canon.heading), centroid=start,
-                         half_extents=half, num_points=int(len(pts)), model_id=self.model_id)
+            features = np.concatenate([features, support_descriptors(sub, offsets).astype(np.float32)], axis=1)
+        codes = []
+        for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):
+            start = c.centroid + c_to_world(offset, float(c.heading)) if self._model.com is not None \
+                else c.centroid.copy()
+            codes.append(ShapeCode(feature=feature, heading=float(c.heading), centroid=start,
+                                   half_extents=0.5 * (loc.max(axis=0) - loc.min(axis=0)), num_points=int(len(p)),
+                                   model_id=self.model_id))
+        return codes
 
     def _check_code(self, code: ShapeCode) -> None:
         feature = np.asarray(code.feature)

@@ -193,3 +193,20 @@ def test_cloud_files_and_predict_command(tmp_path, cloud, model_path, capsys):
     bad = main(["predict", "--model", str(model_path), "--cloud", str(tmp_path / "c.npy"), "--lin-vel", "0", "0",
                 "0", "--ang-vel", "0", "0", "0", "--horizon", "500"])
     assert bad == 2 and "horizon must be in 1..80" in capsys.readouterr().err
+
+
+def test_encode_many_equals_encoding_each_cloud(tmp_path):
+    """Perception encodes every object of a cloud in one pass (encode_many): the same codes as one by one."""
+    pred = Predictor.load(random_checkpoint(tmp_path / "m.pt"))
+    rng = np.random.default_rng(4)
+    clouds = [rng.uniform(-1, 1, (n, 3)) * s + [rng.normal() * 0.2, rng.normal() * 0.2, 0.1]
+              for n, s in ((3000, (0.05, 0.03, 0.1)), (40, (0.04, 0.04, 0.05)), (700, (0.05, 0.02, 0.03)))]
+    many = pred.encode_many(clouds)
+    assert pred.encode_many([]) == []
+    for cloud, code in zip(clouds, many):
+        one = pred.encode(cloud)
+        assert np.allclose(one.feature, code.feature, atol=1e-5) and np.allclose(one.centroid, code.centroid)
+        assert one.heading == code.heading and np.allclose(one.half_extents, code.half_extents)
+        assert one.num_points == code.num_points == len(cloud)
+    with pytest.raises(ValueError):
+        pred.encode_many([clouds[0], np.full((5, 3), np.nan)])

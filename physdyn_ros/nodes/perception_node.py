@@ -261,8 +261,8 @@ class PerceptionNode(ManagedNode):
         else:
             labelled = list(zip(self.tracker.update(centroids, t), scene.objects))
         features = []
-        for object_id, obj in labelled:
-            code = self.predictor.encode(obj.points)
+        codes = self.predictor.encode_many([obj.points for _, obj in labelled])  # one encoder pass for all
+        for (object_id, obj), code in zip(labelled, codes):
             features.append(ShapeFeature(
                 header=header, object_id=object_id, model_id=self.predictor.model_id,
                 feature=np.asarray(code.feature, dtype=np.float32).reshape(-1).tolist(),

@@ -42,9 +42,12 @@ class SyntheticScene:
     camera: RigidTransform  # camera optical frame -> table frame
     objects: list[np.ndarray]  # each object's points, table frame, without noise
     table_points: int
+    centres: np.ndarray  # (n, 3) table frame: each object's true centre of mass (uniform solid box / cylinder)
 
     @property
     def centroids(self) -> np.ndarray:
+        """(n, 3) the centroid of each object's visible points (what a model without a centre-of-mass head
+        reports)."""
         return np.array([o.mean(axis=0) for o in self.objects])
 
 
@@ -110,5 +113,6 @@ def tabletop_scene(n_points: int = 100_000, objects=DEFAULT_OBJECTS, object_shar
     cam = camera.inverse().apply(world)
     cam += rng.normal(0.0, noise, cam.shape) * (np.abs(cam[:, 2:3]) / 0.7)  # depth-proportional noise
     order = rng.permutation(len(cam))
+    centres = np.array([[s.x, s.y, s.half[2]] for s in objs]).reshape(-1, 3)
     return SyntheticScene(points=cam[order].astype(np.float32), camera=camera, objects=surfaces,
-                          table_points=len(table))
+                          table_points=len(table), centres=centres)
