@@ -41,7 +41,8 @@ def refine_candidate(search: "_Search", best: "_Candidate") -> "_Candidate":
     cfg, goal, start, body = search.cfg, search.goal, search.start, search.body
     dev = next(net.parameters()).device
     f32 = dict(dtype=torch.float32, device=dev)
-    feature = torch.as_tensor(np.asarray(code.feature, dtype=np.float32), **f32)[None]
+    # the dynamics network reads its own part of the code (a topple head appends support descriptors)
+    feature = torch.as_tensor(np.asarray(code.feature, dtype=np.float32)[:net.feature_dim], **f32)[None]
     h = float(code.heading)
     rot_c2w = torch.tensor([[math.cos(h), -math.sin(h)], [math.sin(h), math.cos(h)]], **f32)
     inv_inertia = torch.as_tensor(np.linalg.inv(body.inertia_per_mass), **f32)
