@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from . import geometry as geo
 from .conventions import DT
-from .learn.rules import consistent_topple, flat_unless_toppling, settle, topple_with_head
+from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
 from .learn.support import DESCRIPTOR_DIM, support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
@@ -402,6 +402,9 @@ class Predictor:
         the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead)."""
         from .learn.frames import world_to_c
 
+        wanted = horizon
+        if self._topple is not None:  # the head's probability is for the whole push: time it over the full run
+            horizon = max(horizon, HEAD_TIMING_STEPS)
         h = headings[:, None]
         obs_v = obs_w = None
         k = 0
@@ -438,8 +441,9 @@ class Predictor:
         p0 = np.asarray(p0, dtype=np.float64)[:, None]
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)
         orientations = compose_rotations(q0, d_rot)
-        return TrajectoryBatch(self.dt, positions, orientations, lin, ang, consistent_topple(prob, orientations),
-                               novelty)
+        n = wanted + 1  # a shorter horizon is the prefix of the longer roll-out
+        return TrajectoryBatch(self.dt, positions[:, :n], orientations[:, :n], lin[:, :n], ang[:, :n],
+                               consistent_topple(prob, orientations)[:, :n], novelty)
 
 
 def _yaw_rotate(vec: np.ndarray, headings: np.ndarray) -> np.ndarray:

@@ -135,7 +135,7 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     code = headed.encode(cloud)
     v = np.c_[rng.uniform(-2, 2, (64, 2)), np.zeros(64)]
     w = rng.normal(size=(64, 3)) * 2
-    batch = headed.rollout_batch(code, v, w, 30)
+    batch = headed.rollout_batch(code, v, w, 60)  # the head's probability is reached over the full run
     # the head's probability, straight from the model, is the trajectory's unless a pose tilts past 45 deg
     dyn = code.feature[:headed._dynamics_dim]
     heading = code.heading
@@ -154,7 +154,7 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     assert geo.up_tilt_angle(batch.orientations[calm]).max() < 1e-6
     # the dynamics network sees only its own part of the feature: positions match the plain model's where both
     # let the object tilt the same way (no tilt from either)
-    base = plain.rollout_batch(plain.encode(cloud), v, w, 30)
+    base = plain.rollout_batch(plain.encode(cloud), v, w, 60)
     same = calm & (base.topple_probability <= 0.5)
     if same.any():
         assert np.abs(base.positions[same] - batch.positions[same]).max() < 1e-6
@@ -182,7 +182,7 @@ def test_evaluation_applies_the_head_as_the_predictor_does(fitted):
     model, _ = load_model(fitted[1])
     sims = load_sims(tiny_dataset(), ["test"])
     index = np.arange(min(20, len(sims)))
-    traj = model_rollouts(model, sims, index, 20)
+    traj = model_rollouts(model, sims, index, 60)
     data = topple_inputs(model, sims, index, 0.0)
     with torch.inference_mode():
         head = model.topple(*(torch.from_numpy(data[k]).float() for k in ("feature", "desc", "push"))).numpy()
@@ -260,3 +260,22 @@ def test_gradient_refinement_reads_the_dynamics_part_of_a_headed_code(fitted):
     base = PushPlanner(pred, cfg).plan(cloud, Pose2D(0, 0, 0), goal)
     refined = PushPlanner(pred, replace(cfg, refine_steps=3)).plan(cloud, Pose2D(0, 0, 0), goal)
     assert refined.rollouts > base.rollouts
+
+
+def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
+    """Review finding: the head's whole-push probability was squeezed into the requested horizon (horizon 1 read
+    'toppled by 67 ms' with the head's probability). A short roll-out is now the prefix of the 60-step one."""
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load(fitted[1])
+    cloud = _surface(trimesh.creation.box(extents=(0.05, 0.05, 0.2))) + [0.0, 0.0, 0.1]
+    code = pred.encode(cloud)
+    rng = np.random.default_rng(8)
+    v = np.c_[rng.uniform(-2, 2, (32, 2)), np.zeros(32)]
+    w = rng.normal(size=(32, 3))
+    full = pred.rollout_batch(code, v, w, 60)
+    for h in (1, 5, 30):
+        short = pred.rollout_batch(code, v, w, h)
+        assert short.positions.shape[1] == h + 1
+        for name in ("positions", "orientations", "lin_vels", "ang_vels", "topple_prob"):
+            assert np.allclose(getattr(short, name), getattr(full, name)[:, :h + 1], atol=1e-9), (h, name)

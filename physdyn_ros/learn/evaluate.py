@@ -33,7 +33,7 @@ import torch
 from .. import geometry as geo
 from . import frames
 from .model import DynamicsModel
-from .rules import consistent_topple, flat_unless_toppling, settle, topple_with_head
+from .rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
 from .support import support_descriptors
 from .windows import SimArrays, sequences
 
@@ -80,9 +80,12 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         raise ValueError(f"steps_in must be in 1..{horizon}, got {steps_in}")
     model.eval()
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("pos", "quat", "lin_vel", "ang_vel", "topple_prob")}
+    wanted = horizon
+    if model.topple is not None:  # as the Predictor: the head's timing over the full run, then the prefix
+        horizon = max(horizon, HEAD_TIMING_STEPS)
     for sl in _batches(len(index), batch_size):
         idx = index[sl]
-        seq = sequences(sims, horizon, model.cfg.num_points, idx, partial, noise, view_seed=sl.start)
+        seq = sequences(sims, wanted, model.cfg.num_points, idx, partial, noise, view_seed=sl.start)
         k = steps_in - 1
         obs_v = seq["vel"][:, 1:1 + k].to(device) if k else None
         obs_w = seq["angvel"][:, 1:1 + k].to(device) if k else None
@@ -115,7 +118,7 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         parts["lin_vel"].append(frames.c_to_world(vel, h))
         parts["ang_vel"].append(frames.c_to_world(angvel, h))
         parts["topple_prob"].append(consistent_topple(prob, quat))
-    return Trajectories(**{k: np.concatenate(v) for k, v in parts.items()})
+    return Trajectories(**{k: np.concatenate(v)[:, :wanted + 1] for k, v in parts.items()})
 
 
 @torch.inference_mode()

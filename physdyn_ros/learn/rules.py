@@ -14,6 +14,12 @@ import numpy as np
 from ..conventions import DT, REST_ANG_VEL, REST_LIN_VEL, TOPPLE_ANGLE
 
 
+#: The whole-push topple head's probability is for the whole push (simulations of 5 s): roll-outs with a head take
+#: the per-step timing from at least this many steps (4 s) and return the requested prefix, so a short horizon
+#: does not squeeze the whole probability into its few steps.
+HEAD_TIMING_STEPS = 60
+
+
 def tilted_past(orientations: np.ndarray) -> np.ndarray:
     """(B, H+1) bool: the pose's up axis is tilted past TOPPLE_ANGLE (orientations (B, H+1, 4) x, y, z, w)."""
     x, y = orientations[..., 0], orientations[..., 1]
