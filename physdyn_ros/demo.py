@@ -243,15 +243,14 @@ def set_table(c: DemoClient, table: int, plan: list[tuple[str, int]], previous: 
     them. Returns ({sim id: SpawnObject response}, {sim id: tracked id}, stamp of the spawn)."""
     from .ros.convert import time_to_ns
     from .srv import SpawnObject
-    from std_srvs.srv import Trigger
 
     ids = [f"obj{k + 1}" for k in range(len(plan))]
-    if table > 1:
-        done = c.call(c.reset, Trigger.Request())  # every object back at its slot: the new ones fit in place
+    # clear the previous table first: its objects lie where they were pushed (or back at slots of another
+    # phase after a reset), where a new object's slot may overlap one of them
+    for oid in previous:
+        done = c.call(c.spawn, SpawnObject.Request(object_id=oid, category="remove"))
         if not done.success:
-            raise RuntimeError(done.message)
-    for oid in previous[len(ids):]:  # a smaller last table
-        c.call(c.spawn, SpawnObject.Request(object_id=oid, category="remove"))
+            raise RuntimeError(f"table {table}: removing {oid}: {done.message}")
     spawned = {}
     for oid, (category, shape_seed), (x, y) in zip(ids, plan, table_slots(len(plan), rng)):
         yaw = float(rng.uniform(-math.pi, math.pi))
