@@ -104,9 +104,43 @@ def ensure_type(msgtype: str) -> str:
     return msgtype
 
 
+#: Fields appended to the suite's types since bags were first recorded: a message recorded before a field existed
+#: is read with the definition without it (the field is then absent from the decoded message).
+ADDED_FIELDS: dict[str, tuple[str, ...]] = {f"{PACKAGE}/msg/PredictedTrajectory": ("novelty",)}
+_legacy: dict[str, Typestore] = {}
+
+
+def _legacy_store(msgtype: str) -> Typestore:
+    """A typestore whose msgtype lacks the fields added since (built once per type)."""
+    with _lock:
+        if msgtype not in _legacy:
+            store = get_typestore(Stores.ROS2_JAZZY)
+            path = _find_msg(msgtype)
+            assert path is not None
+            added = ADDED_FIELDS[msgtype]
+            lines = [ln for ln in path.read_text().splitlines()
+                     if not (ln.split("#")[0].split() and ln.split("#")[0].split()[-1] in added)]
+            types = get_types_from_msg("\n".join(lines) + "\n", msgtype)
+            seen = {msgtype}
+            for _, fields in types.values():
+                for _, (kind, arg) in fields:
+                    ref = arg[0][1] if isinstance(arg, tuple) and arg and isinstance(arg[0], tuple) else arg
+                    if isinstance(ref, str) and "/" in ref:
+                        _register(store, ref, seen)
+            store.register(types)
+            _legacy[msgtype] = store
+        return _legacy[msgtype]
+
+
 def deserialize(data: bytes | memoryview, msgtype: str):
-    """CDR bytes -> a rosbags message object (same field names as the ROS message)."""
-    return typestore().deserialize_cdr(data, msgtype)
+    """CDR bytes -> a rosbags message object (same field names as the ROS message). A suite message recorded
+    before a field was added (ADDED_FIELDS) is read with the older definition."""
+    try:
+        return typestore().deserialize_cdr(data, msgtype)
+    except Exception:
+        if msgtype not in ADDED_FIELDS:
+            raise
+        return _legacy_store(msgtype).deserialize_cdr(data, msgtype)
 
 
 def serialize(msg, msgtype: str) -> bytes:
