@@ -20,6 +20,7 @@ from typing import Any, Optional
 
 import numpy as np
 import torch
+from scipy.special import expit
 from torch import Tensor, nn
 
 from .support import DESCRIPTOR_DIM, PUSH_DIM, push_quantities
@@ -81,6 +82,10 @@ class ToppleHead(nn.Module):
         self.precision.copy_(torch.linalg.inv(cov).float())
         self.novelty_scale.copy_(torch.quantile(self._distance(z).double(), quantile).float())
         lo, hi = x.min(dim=0).values, x.max(dim=0).values
+        # a push without tilting spin, or an object at rest, is ordinary even where every training push had
+        # some: the per-push quantities' ranges reach zero
+        push = slice(self.in_dim - PUSH_DIM, self.in_dim)
+        lo[push], hi[push] = lo[push].clamp_max(0.0), hi[push].clamp_min(0.0)
         self.range_centre.copy_(0.5 * (lo + hi))
         self.range_radius.copy_((0.5 * RANGE_MARGIN * (hi - lo)).clamp_min(1e-6))
 
@@ -140,7 +145,7 @@ class ToppleHead(nn.Module):
         h1 = np.maximum(z @ w["w1"] + w["b1"], 0.0).reshape(len(z), members, -1)  # (B, M, H)
         h2 = np.maximum(np.einsum("bmi,mij->bmj", h1, w["w2"]) + w["b2"], 0.0)
         logits = np.einsum("bmj,mj->bm", h2, w["w3"]) + w["b3"]
-        prob = np.mean(1.0 / (1.0 + np.exp(-logits)), axis=1)
+        prob = np.mean(expit(logits), axis=1)  # no overflow warning for extreme logits
         combined = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", z, w["precision"], z), 0.0)) / w["scale"]
         novelty = np.maximum(combined, np.max(np.abs(x - w["centre"]) / w["radius"], axis=1))
         return prob, novelty
