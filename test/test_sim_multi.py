@@ -98,3 +98,24 @@ def test_one_object_world_is_rebuilt_per_spawn(sim, box):
     sim.spawn(box, object_id="a", xy=(0.0, 0.3))
     sim.spawn(box, object_id="b", xy=(0.4, 0.0))
     np.testing.assert_array_equal(run(sim), ref)
+
+
+def test_spawning_again_and_again_frees_the_collision_shapes():
+    """Review finding: replaced, refused and removed bodies left their collision shapes in the world (a sim node
+    that spawns hundreds of objects grew). Every shape made is freed with its body, except the live ones."""
+    from physdyn_ros.shapes import make_procedural
+    from physdyn_ros.sim.simulator import Simulator
+
+    shape = make_procedural("box", 1)
+    with Simulator() as sim:
+        made, freed = [], []
+        create, remove = sim.client.createCollisionShape, sim.client.removeCollisionShape
+        sim.client.createCollisionShape = lambda *a, **k: made.append(create(*a, **k)) or made[-1]
+        sim.client.removeCollisionShape = lambda i: freed.append(i) or remove(i)
+        for _ in range(5):
+            sim.spawn(shape, object_id="a")  # add, then replace four times
+        sim.spawn(shape, xy=(0.5, 0.0), object_id="b")
+        with pytest.raises(ValueError, match="overlap"):
+            sim.spawn(shape, xy=(0.5, 0.0), object_id="c")  # refused
+        sim.remove("b")
+        assert sorted(freed) == sorted(i for i in made if i != sim.get("a").collision)

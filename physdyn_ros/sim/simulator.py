@@ -217,6 +217,7 @@ class Body:
     q_inertial: np.ndarray  # object <- inertial (principal) frame, x y z w
     r_inertial: Rotation  # the same as a scipy Rotation
     to_object: np.ndarray  # q_world_object = to_object @ q_world_inertial (see Simulator.state)
+    collision: int = -1  # its pybullet collision shape (freed with the body: a long-running node spawns many)
 
 
 class Simulator:
@@ -381,13 +382,13 @@ class Simulator:
         others = {k: b for k, b in self.bodies.items() if k != object_id}
         hits = self._overlaps(body, others) if others else {}
         if hits:
-            self.client.removeBody(body.uid)
+            self._drop(body)
             raise ValueError(f"{object_id!r} at ({float(xy[0]):.3f}, {float(xy[1]):.3f}) m would overlap "
                              + ", ".join(f"{k!r} (by {1e3 * d:.0f} mm)" for k, d in hits.items())
                              + ": spawn it elsewhere or move the other object first")
         old = self.bodies.pop(object_id, None)
         if old is not None:
-            self.client.removeBody(old.uid)
+            self._drop(old)
         self.bodies[object_id] = body
         if settle:
             self._settle(body)
@@ -450,7 +451,13 @@ class Simulator:
         inv = r_in.inv()
         to_object = np.stack([(Rotation.from_quat(e) * inv).as_quat() for e in np.eye(4)], axis=1)
         return Body(uid=uid, shape=shape, scale=scale, friction=mu, mass=mp.mass, inertia=inertia,
-                    principal_moments=moments, q_inertial=q_in, r_inertial=r_in, to_object=to_object)
+                    principal_moments=moments, q_inertial=q_in, r_inertial=r_in, to_object=to_object, collision=cs)
+
+    def _drop(self, body: Body) -> None:
+        """Remove a body and its collision shape from the world."""
+        self.client.removeBody(body.uid)
+        if body.collision >= 0:
+            self.client.removeCollisionShape(body.collision)
 
     def _settle(self, body: Body) -> None:
         cfg = self.config
@@ -469,7 +476,7 @@ class Simulator:
         if object_id is not None:
             self.get(object_id)
         for k in [object_id] if object_id is not None else list(self.bodies):
-            self.client.removeBody(self.bodies.pop(k).uid)
+            self._drop(self.bodies.pop(k))
 
     def _require_body(self, object_id: str | None = None) -> int:
         return self.get(object_id).uid
