@@ -335,6 +335,7 @@ class SimNode(ManagedNode):
 
     def remove(self, object_id: str) -> None:
         """Remove an object (ValueError naming the objects if there is none of that id)."""
+        self.sim.get(object_id)  # refuse an unknown id before a running push is stopped
         self._hold_still()
         self.sim.remove(object_id)
         self._drop_visual(object_id)
