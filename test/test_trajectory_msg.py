@@ -45,7 +45,8 @@ def old_trajectory_to_msg(traj, frame_id, stamp, object_id, model_id, steps_in=0
               for k in range(len(traj.positions))]
     return PredictedTrajectory(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
                                model_id=model_id, time_step=duration_from_sec(traj.dt), steps_in=int(steps_in),
-                               states=states, topple_probability=float(prob.max()) if prob.size else 0.0)
+                               states=states, topple_probability=float(prob.max()) if prob.size else 0.0,
+                               novelty=float(traj.novelty))  # the field added with the topple head
 
 
 # ------------------------------------------------------------------------------------- CDR field bytes
@@ -105,7 +106,7 @@ def fake_trajectory(rng, n: int, dt: float, tilt: float = 1.5) -> SimpleNamespac
     q = geo.quat_multiply(tilted, geo.yaw_quat(rng.uniform(-np.pi, np.pi, n)))
     return SimpleNamespace(dt=dt, positions=rng.normal(size=(n, 3)), orientations=q,
                            lin_vels=rng.normal(size=(n, 3)), ang_vels=rng.normal(size=(n, 3)) * 3,
-                           topple_prob=rng.uniform(size=n))
+                           topple_prob=rng.uniform(size=n), novelty=float(rng.uniform(0, 2)))
 
 
 @pytest.mark.parametrize("n, dt, stamp_ns", [
