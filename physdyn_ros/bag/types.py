@@ -74,6 +74,11 @@ def _register(store: Typestore, msgtype: str, seen: set[str]) -> None:
         raise ValueError(f"unknown message type {msgtype!r}: not a ROS 2 Jazzy type and no {name}.msg "
                          f"found in share/{package}/msg of the ROS prefixes (source its workspace)")
     types = get_types_from_msg(path.read_text(), msgtype)
+    _register_with_dependencies(store, types, seen)
+
+
+def _register_with_dependencies(store: Typestore, types: dict, seen: set[str]) -> None:
+    """Register parsed types after (recursively, from .msg files) the types their fields use."""
     for _, fields in types.values():
         for _, (kind, arg) in fields:
             ref = arg[0][1] if isinstance(arg, tuple) and arg and isinstance(arg[0], tuple) else arg
@@ -120,14 +125,7 @@ def _legacy_store(msgtype: str) -> Typestore:
             added = ADDED_FIELDS[msgtype]
             lines = [ln for ln in path.read_text().splitlines()
                      if not (ln.split("#")[0].split() and ln.split("#")[0].split()[-1] in added)]
-            types = get_types_from_msg("\n".join(lines) + "\n", msgtype)
-            seen = {msgtype}
-            for _, fields in types.values():
-                for _, (kind, arg) in fields:
-                    ref = arg[0][1] if isinstance(arg, tuple) and arg and isinstance(arg[0], tuple) else arg
-                    if isinstance(ref, str) and "/" in ref:
-                        _register(store, ref, seen)
-            store.register(types)
+            _register_with_dependencies(store, get_types_from_msg("\n".join(lines) + "\n", msgtype), {msgtype})
             _legacy[msgtype] = store
         return _legacy[msgtype]
 

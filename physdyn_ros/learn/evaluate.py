@@ -263,23 +263,16 @@ def markdown_report(report: dict[str, Any]) -> str:
              f"({report['horizon'] * report['dt']:.1f} s), steps in {report['steps_in']}. "
              "Units: v cm/s, w rad/s, P cm, |theta| deg, axis 1-cos.", ""]
     groups = [("overall", report["results"]["overall"])] + sorted(report["results"]["per_category"].items())
-    lines += ["## Single-step errors (all sequences)", "",
-              "| group | method | v | w | P | abs theta | axis |", "|---|---|---|---|---|---|---|"]
-    for g, res in groups:
-        for m, r in res.items():
-            if "single_step" in r:
-                s = r["single_step"]
-                cells = " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
-                lines.append(f"| {g} | {m} | {cells} |")
+    def single_step_table(key: str) -> list[str]:
+        rows = ["| group | method | v | w | P | abs theta | axis |", "|---|---|---|---|---|---|---|"]
+        for g, res in groups:
+            rows += [f"| {g} | {m} | " + " | ".join(_fmt(r[key][k]) for k in ("v", "w", "p", "angle", "axis")) + " |"
+                     for m, r in res.items() if key in r]
+        return rows
+
+    lines += ["## Single-step errors (all sequences)", ""] + single_step_table("single_step")
     lines += ["", "Averaged as the original code did (every step of the horizon, the steps at rest included; "
-              "the table above averages the steps in motion only):", "",
-              "| group | method | v | w | P | abs theta | axis |", "|---|---|---|---|---|---|---|"]
-    for g, res in groups:
-        for m, r in res.items():
-            if "single_step_all_steps" in r:
-                s = r["single_step_all_steps"]
-                cells = " | ".join(_fmt(s[k]) for k in ("v", "w", "p", "angle", "axis"))
-                lines.append(f"| {g} | {m} | {cells} |")
+              "the table above averages the steps in motion only):", ""] + single_step_table("single_step_all_steps")
     lines += ["", "## Roll-out (sequences without toppling)", "",
               "| group | method | n | v | w | P | abs theta | axis | final P cm (median / p90) "
               "| final rot deg (median / p90) |",
