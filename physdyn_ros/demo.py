@@ -237,6 +237,28 @@ def match_tracks(c: DemoClient, positions: dict[str, np.ndarray], after_ns: int)
     return None
 
 
+def set_predictor_object(c: DemoClient, tracked_id: str, attempts: int = 3) -> None:
+    """Point the predictor's object_id parameter at the pushed object. Fast DDS can drop a service reply sent
+    before the client's reply reader is matched (a CI run waited 60 s for one): wait for the parameter services,
+    then retry the (idempotent) request a few times with a shorter timeout."""
+    from rclpy.parameter import Parameter
+
+    if not c.predictor_params.wait_for_services(timeout_sec=30.0):
+        raise RuntimeError("the predictor's parameter services are not available")
+    for attempt in range(attempts):
+        try:
+            res = c.result(c.predictor_params.set_parameters([Parameter("object_id", value=tracked_id)]),
+                           "predictor parameters", timeout=10.0)
+        except RuntimeError:
+            if attempt == attempts - 1:
+                raise
+            continue
+        if not res.results or not res.results[0].successful:
+            raise RuntimeError(f"the predictor refused object_id {tracked_id!r}: "
+                               f"{res.results[0].reason if res.results else 'no result'}")
+        return
+
+
 def set_table(c: DemoClient, table: int, plan: list[tuple[str, int]], previous: list[str],
               rng: np.random.Generator) -> tuple[dict[str, object], dict[str, str], int]:
     """Spawn the table's objects (replacing the previous table's after a reset), wait until perception tracks
@@ -278,8 +300,6 @@ def set_table(c: DemoClient, table: int, plan: list[tuple[str, int]], previous: 
 
 def run_push(c: DemoClient, index: int, table: int, object_id: str, tracked_id: str, spawned, category: str,
              rng: np.random.Generator, horizon: int) -> PushResult:
-    from rclpy.parameter import Parameter
-
     from .ros.convert import time_to_ns
     from .srv import PredictTrajectory, PushObject
 
@@ -291,7 +311,7 @@ def run_push(c: DemoClient, index: int, table: int, object_id: str, tracked_id: 
     he = np.array([spawned.half_extents.x, spawned.half_extents.y, spawned.half_extents.z])
     outline = body_points(cloud, first.pose, rng, he)
     # The predictor's own prediction for each initial_twist follows its object_id parameter: the pushed object.
-    c.result(c.predictor_params.set_parameters([Parameter("object_id", value=tracked_id)]), "predictor parameters")
+    set_predictor_object(c, tracked_id)
     # A push through a point beside the centre of mass, outwards from the table's centre (away from the other
     # objects): it slides and spins; sometimes it topples.
     com = first.pose.position
