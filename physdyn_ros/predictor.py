@@ -281,15 +281,13 @@ class Predictor:
         with torch.inference_mode():
             encoded = self._model.encode(torch.from_numpy(sub).to(self._device))
             features = encoded.float().cpu().numpy()
-            offsets = (self._model.com_offset(encoded).double().cpu().numpy() if self._model.com is not None
-                       else np.zeros((len(pts), 3)))
+            offsets = self._model.com_estimate(encoded).double().cpu().numpy()
         if self._topple is not None:
             features = np.concatenate([features, support_descriptors(sub, offsets).astype(np.float32)], axis=1)
         codes = []
         for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):
-            start = c.centroid + c_to_world(offset, float(c.heading)) if self._model.com is not None \
-                else c.centroid.copy()
-            codes.append(ShapeCode(feature=feature, heading=float(c.heading), centroid=start,
+            codes.append(ShapeCode(feature=feature, heading=float(c.heading),
+                                   centroid=c.centroid + c_to_world(offset, float(c.heading)),
                                    half_extents=0.5 * (loc.max(axis=0) - loc.min(axis=0)), num_points=int(len(p)),
                                    model_id=self.model_id))
         return codes
@@ -433,7 +431,6 @@ class Predictor:
         flat_unless_toppling(d_rot[:, k:], ang[:, k:], prob)  # observed steps keep their observed rotations
         novelty = None
         if self._topple is not None:
-            feats = np.asarray(feats)
             head, novelty = self._topple.assess(feats[:, :self._dynamics_dim], feats[:, self._dynamics_dim:],
                                                 vw[:, 0], vw[:, 1])
             prob = topple_with_head(prob, head, d_rot, ang, k, lambda d: compose_rotations(q0, d))

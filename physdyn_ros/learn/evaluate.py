@@ -103,9 +103,8 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         prob = np.concatenate([np.zeros((len(idx), 1)), 1.0 / (1.0 + np.exp(-out["topple_logit"]))], axis=1)
         flat_unless_toppling(d_rot[:, k:], angvel[:, k:], prob)
         if model.topple is not None:  # the whole-push topple head, as the Predictor applies it
-            cloud = seq["cloud"].numpy()
-            com = model.com_offset(feature).double().cpu().numpy() if model.com is not None else np.zeros((len(idx), 3))
-            head, _ = model.topple.assess(feature.cpu().numpy(), support_descriptors(cloud, com),
+            com = model.com_estimate(feature).double().cpu().numpy()
+            head, _ = model.topple.assess(feature.cpu().numpy(), support_descriptors(seq["cloud"].numpy(), com),
                                             seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy())
             p0, q0 = sims.pos[idx, 0], sims.quat[idx, 0]
             prob = topple_with_head(prob, head, d_rot, angvel, k,

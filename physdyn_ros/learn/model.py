@@ -543,6 +543,10 @@ class DynamicsModel(nn.Module):
             raise ValueError("this model has no centre-of-mass head (model.com_head)")
         return self.com(feature) * self._scale("cloud")
 
+    def com_estimate(self, feature: Tensor) -> Tensor:
+        """com_offset, or zeros (the centroid itself) for a model without a centre-of-mass head (B, 3)."""
+        return self.com_offset(feature) if self.com is not None else feature.new_zeros(len(feature), 3)
+
     def _prior_decel(self, feature: Tensor) -> Tuple[Tensor, Tensor]:
         """(mu g, mu g / r) per object of the sliding prior, r from the feature's geometry (model.prior)."""
         radius = (feature[:, self.learned_dim] * self._scale("cloud")).clamp_min(MIN_RADIUS)

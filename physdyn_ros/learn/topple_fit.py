@@ -15,7 +15,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 import torch
 
-from .evaluate import calibration
+from .evaluate import _fmt, calibration, topple_scores
 from .model import DynamicsModel
 from .support import push_quantities, support_descriptors
 from .topple import ToppleHead
@@ -31,8 +31,7 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
         idx = index[start:start + batch_size]
         seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start)
         feature = model.encode(seq["cloud"])
-        com = model.com_offset(feature).numpy() if model.com is not None else np.zeros((len(idx), 3))
-        desc = support_descriptors(seq["cloud"].numpy(), com)
+        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy())
         parts["feature"].append(feature.numpy())
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))
@@ -45,14 +44,10 @@ def _join(*sets: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def scores(prob: np.ndarray, label: np.ndarray, threshold: float = 0.5) -> dict[str, Any]:
-    """F1, precision, recall at `threshold`, Brier score and reliability table (evaluate.calibration)."""
-    pred, true = prob > threshold, label > 0.5
-    tp, fp, fn = int(np.sum(pred & true)), int(np.sum(pred & ~true)), int(np.sum(~pred & true))
-    precision = tp / (tp + fp) if tp + fp else float("nan")
-    recall = tp / (tp + fn) if tp + fn else float("nan")
-    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
-    return {"n": int(len(prob)), "positives": int(true.sum()), "f1": f1, "precision": precision, "recall": recall,
-            **calibration(prob, true)}
+    """physdyn evaluate's topple scores at `threshold` (F1, precision, recall; None where undefined) with the
+    Brier score and reliability table."""
+    true = label > 0.5
+    return {**topple_scores(prob > threshold, true), **calibration(prob, true)}
 
 
 def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
@@ -124,8 +119,9 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
     result["seconds"] = round(time.time() - t0, 1)
     result["train_pushes"] = int(len(y))
     if log:
-        log(f"topple head: validation F1 {result['f1']:.3f} (precision {result['precision']:.3f}, recall "
-            f"{result['recall']:.3f}), Brier {result['brier']:.4f}, {result['seconds']} s")
+        f1, precision, recall = (_fmt(result[k]) for k in ("f1", "precision", "recall"))
+        log(f"topple head: validation F1 {f1} (precision {precision}, recall {recall}), Brier "
+            f"{_fmt(result['brier'], 4)}, {result['seconds']} s")
     return result
 
 
