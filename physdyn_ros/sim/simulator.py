@@ -35,7 +35,7 @@ import tempfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -298,50 +298,42 @@ class Simulator:
             raise RuntimeError("no object in the simulator: call spawn() first")
         raise RuntimeError(f"{len(self.bodies)} objects in the simulator ({', '.join(self.bodies)}): name one")
 
-    def _sole(self) -> Body | None:
-        """The only object (None when there is none): the single-object properties below read it."""
-        return self.get() if self.bodies else None
+    def _of_sole(self, attr: str, empty: Any) -> Any:
+        """`attr` of the only object (`empty` when there is none): what the single-object properties below read."""
+        return getattr(self.get(), attr) if self.bodies else empty
 
     # The single-object API: the only object's properties (None / zeros when there is no object).
     @property
     def body(self) -> int | None:
-        b = self._sole()
-        return None if b is None else b.uid
+        return self._of_sole("uid", None)
 
     @property
     def shape(self) -> Shape | None:
-        b = self._sole()
-        return None if b is None else b.shape
+        return self._of_sole("shape", None)
 
     @property
     def scale(self) -> np.ndarray:
-        b = self._sole()
-        return np.ones(3) if b is None else b.scale
+        return self._of_sole("scale", np.ones(3))
 
     @property
     def friction(self) -> float:
-        b = self._sole()
-        return self.config.friction if b is None else b.friction
+        return self._of_sole("friction", self.config.friction)
 
     @property
     def mass(self) -> float:
-        b = self._sole()
-        return 0.0 if b is None else b.mass
+        return self._of_sole("mass", 0.0)
 
     @property
     def inertia(self) -> np.ndarray:
-        b = self._sole()
-        return np.zeros((3, 3)) if b is None else b.inertia
+        return self._of_sole("inertia", np.zeros((3, 3)))
 
     @property
     def principal_moments(self) -> np.ndarray:
-        b = self._sole()
-        return np.zeros(3) if b is None else b.principal_moments
+        return self._of_sole("principal_moments", np.zeros(3))
 
     @property
     def _q_inertial(self) -> np.ndarray:  # object <- inertial (principal) frame; read by tests
-        b = self._sole()
-        return np.array([0.0, 0.0, 0.0, 1.0]) if b is None else b.q_inertial
+        return self._of_sole("q_inertial", np.array([0.0, 0.0, 0.0, 1.0]))
 
     # -- object ----------------------------------------------------------------------------------------------
     def _collision_shape(self, shape: Shape, scale: np.ndarray) -> int:
