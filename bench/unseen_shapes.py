@@ -12,8 +12,8 @@ pushes that do not topple) with the baselines: the object stays still, Coulomb s
 pybullet on the cloud's convex hull with friction -20 % / +20 %. Also the centre-of-mass estimate on partial
 views (models with a centre-of-mass head) against the centroid of the visible points.
 Prints the tables; the last line is one JSON object {group: {method: {pos_median, pos_p90, rot_median, rot_p90,
-f1, precision, recall, brier}}, "com_partial": {...}, "novelty": {group: {flagged, median}}} (novelty: models
-with a topple head).
+f1, precision, recall, brier}}, "com_partial": {...}, "novelty": {group: {flagged, median}}, "novelty_examples":
+{case: novelty}} (novelty: models with a topple head).
 """
 from __future__ import annotations
 
@@ -88,6 +88,32 @@ def novelty_rates(ckpt: str, data: str, categories: list[str] | None, max_sequen
     return {"flagged": float(np.mean(novelty > 1)), "median": float(np.median(novelty))}
 
 
+def novelty_examples(ckpt: str) -> dict | None:
+    """Novelty of a few made-up pushes and shapes (the model card's examples): an ordinary box push, a faster
+    push than any trained, a vertical launch, no push, a thin pole, a thin plate, a needle, a sphere."""
+    import trimesh
+
+    from physdyn_ros.predictor import Predictor
+    pred = Predictor.load(ckpt)
+    if pred.feature_dim == pred._dynamics_dim:  # no topple head, no novelty
+        return None
+
+    def cloud(mesh) -> np.ndarray:
+        pts = np.asarray(trimesh.sample.sample_surface(mesh, 3000, seed=0)[0])
+        return pts - [0.0, 0.0, pts[:, 2].min()]
+
+    box = cloud(trimesh.creation.box(extents=(0.08, 0.06, 0.12)))
+    spin = (0.0, 0.0, 0.5)
+    cases = {"box, 0.5 m/s": (box, (0.5, 0, 0), spin), "box, 0.5 m/s, no spin": (box, (0.5, 0, 0), (0, 0, 0)),
+             "box, no push": (box, (0, 0, 0), (0, 0, 0)), "box, 4.9 m/s": (box, (4.9, 0, 0), spin),
+             "box, 1 m/s upwards": (box, (0.5, 0, 1.0), spin),
+             "pole 50 x 2 cm": (cloud(trimesh.creation.cylinder(radius=0.01, height=0.5)), (0.5, 0, 0), spin),
+             "plate 40 x 40 x 0.4 cm": (cloud(trimesh.creation.box(extents=(0.4, 0.4, 0.004))), (0.5, 0, 0), spin),
+             "needle 50 x 1 x 1 cm": (cloud(trimesh.creation.box(extents=(0.5, 0.01, 0.01))), (0.5, 0, 0), spin),
+             "sphere 5 cm": (cloud(trimesh.creation.icosphere(radius=0.05)), (0.5, 0, 0), spin)}
+    return {name: round(pred.rollout(c, v, w, 60).novelty, 2) for name, (c, v, w) in cases.items()}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", required=True)
@@ -125,6 +151,9 @@ def main() -> int:
         result["novelty"] = novelty
         print("\nnovelty > 1 (beyond 99.5 % of the training inputs): " + ", ".join(
             f"{name} {100 * v['flagged']:.1f} % (median {v['median']:.2f})" for name, v in novelty.items()))
+        result["novelty_examples"] = novelty_examples(args.checkpoint)
+        print("novelty of made-up pushes and shapes: " + ", ".join(
+            f"{k} {v:.2f}" for k, v in result["novelty_examples"].items()))
     print(f"\ncentre of mass on partial views of held-out families: {result['com_partial']}")
     print(json.dumps(result))
     return 0
