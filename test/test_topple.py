@@ -113,9 +113,73 @@ def fitted(tmp_path_factory):
     src = random_checkpoint(tmp / "src.pt")
     out = tmp / "fitted.pt"
     args = argparse.Namespace(checkpoint=str(src), data=str(tiny_dataset()), out=str(out), max_train=100,
-                              partial=0.5, epochs=3, members=2, seed=0, threads=1)
+                              partial=0.5, epochs=3, members=2, seed=0, threads=1, family_folds=3)
     assert topple_fit.run(args) == 0
     return src, out
+
+
+def test_fit_topple_calibrates_the_head_on_families_it_left_out(fitted):
+    """--family-folds: every training push is predicted by a head fitted without its family; the Platt scaling
+    of those predictions is the head's calibration, stored with it and reported in the checkpoint."""
+    from physdyn_ros.learn.checkpoint import load_model
+
+    model, ckpt = load_model(fitted[1])
+    fit = ckpt["config"]["topple_fit"]
+    assert fit["family_folds"] == 3
+    cal = fit["validation"]["calibration"]
+    assert model.topple.calibration.tolist() == pytest.approx(cal, abs=1e-4)
+    assert cal != [1.0, 0.0]
+    for key in ("out_of_family_raw", "out_of_family"):
+        assert fit["validation"][key]["n"] == fit["validation"]["train_pushes"]  # every training push, once
+
+
+def test_platt_scaling_recovers_a_known_miscalibration():
+    from physdyn_ros.learn.topple_fit import fit_calibration
+
+    rng = np.random.default_rng(0)
+    z = rng.normal(0.0, 2.0, 20000)
+    y = rng.random(len(z)) < 1.0 / (1.0 + np.exp(-(0.6 * z + 0.8)))  # true: under-confident, shifted
+    a, b = fit_calibration(1.0 / (1.0 + np.exp(-z)), y)
+    assert a == pytest.approx(0.6, abs=0.05) and b == pytest.approx(0.8, abs=0.08)
+    with pytest.raises(ValueError, match="toppled and pushes that did not"):
+        fit_calibration(np.full(10, 0.3), np.zeros(10))
+
+
+def test_family_folds_partition_the_families():
+    from physdyn_ros.learn.topple_fit import split_families
+
+    cats = np.array(["box", "mug", "box", "vase", "rock", "gear", "mug"])
+    folds = split_families(cats, 2, seed=1)
+    assert sorted(sum(folds, [])) == ["box", "gear", "mug", "rock", "vase"] and all(folds)
+    with pytest.raises(ValueError, match="family folds must be in 2..5"):
+        split_families(cats, 6)
+
+
+def test_a_head_fitted_on_other_descriptors_is_refused_with_the_refit_command(fitted):
+    from physdyn_ros.learn.checkpoint import CheckpointError, build_model, load_checkpoint
+
+    ckpt = load_checkpoint(fitted[1])
+    in_dim = build_model(ckpt).topple.in_dim
+    for key in [k for k in ckpt["model"] if k.startswith("topple.")]:
+        value = ckpt["model"][key]
+        if value.ndim and value.shape[0] == in_dim:  # a head fitted on 3 inputs fewer
+            ckpt["model"][key] = value[:-3]
+    with pytest.raises(CheckpointError, match="refit the head: physdyn fit-topple"):
+        build_model(ckpt, "old.pt")
+
+
+def test_a_head_saved_before_the_calibration_loads_with_the_identity(fitted):
+    """Checkpoints written before the calibration existed (the state dict lacks it) load and predict as before."""
+    from physdyn_ros.learn.checkpoint import load_model
+
+    model, _ = load_model(fitted[1])
+    head = model.topple
+    state = {k: v for k, v in head.state_dict().items() if k != "calibration"}
+    head.calibration.copy_(torch.tensor([0.5, 0.5]))
+    head.load_state_dict(state)
+    assert head.calibration.tolist() == [1.0, 0.0]
+    p = torch.tensor([0.0, 0.2, 1.0])
+    assert torch.equal(head.calibrated(p), p)  # the identity leaves probabilities bit for bit
 
 
 def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):

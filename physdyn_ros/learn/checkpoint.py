@@ -125,6 +125,12 @@ def build_model(ckpt: dict[str, Any], path: str | os.PathLike = "<checkpoint>") 
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: incompatible model config: {exc}") from exc
     model = DynamicsModel(cfg)
+    stored = ckpt["model"].get("topple.mean") if isinstance(ckpt.get("model"), dict) else None
+    if model.topple is not None and stored is not None and tuple(stored.shape) != tuple(model.topple.mean.shape):
+        raise CheckpointError(
+            f"{path}: its topple head was fitted on {stored.shape[0]} inputs, this version computes "
+            f"{model.topple.in_dim} (the support descriptors changed); refit the head: physdyn fit-topple "
+            f"--checkpoint {path} --data DATASET --out NEW.pt")
     try:
         model.load_state_dict(ckpt["model"], strict=True)
     except RuntimeError as exc:

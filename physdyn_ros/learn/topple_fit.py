@@ -25,8 +25,9 @@ from .windows import SimArrays, sequences
 @torch.inference_mode()
 def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, partial: float = 0.0,
                   noise: float = 0.002, view_seed: int = 0, batch_size: int = 256) -> dict[str, np.ndarray]:
-    """feature (B, F), desc (B, D), push (B, E), label (B,) of simulations `index` (frame 0, C frame)."""
-    parts: dict[str, list[np.ndarray]] = {"feature": [], "desc": [], "push": [], "label": []}
+    """feature (B, F), desc (B, D), push (B, E), label (B,), category (B,) of simulations `index` (frame 0,
+    C frame)."""
+    parts: dict[str, list[np.ndarray]] = {"feature": [], "desc": [], "push": [], "label": [], "category": []}
     for start in range(0, len(index), batch_size):
         idx = index[start:start + batch_size]
         seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start)
@@ -36,6 +37,7 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))
         parts["label"].append((sims.topple_index[idx] >= 0).astype(np.float32))
+        parts["category"].append(np.asarray(sims.category[idx]).astype(str))
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
@@ -50,42 +52,22 @@ def scores(prob: np.ndarray, label: np.ndarray, threshold: float = 0.5) -> dict[
     return {**topple_scores(prob > threshold, true), **calibration(prob, true)}
 
 
-def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
-                    partial: float = 1.0 / 3.0, noise: float = 0.002, epochs: int = 120, batch_size: int = 512,
-                    lr: float = 3e-3, weight_decay: float = 1e-3, seed: int = 0,
-                    log: Optional[Callable[[str], None]] = print) -> dict[str, Any]:
-    """Fit model.topple (a ToppleHead) in place; returns validation scores. The rest of the model is frozen."""
-    head = model.topple
-    if not isinstance(head, ToppleHead):
-        raise ValueError("the model has no topple head (model.topple_head: true)")
-    t0 = time.time()
-    rng = np.random.default_rng(seed)
-    n = min(max_train, len(train))
-    index = np.sort(rng.choice(len(train), n, replace=False))
-    n_part = int(round(partial * n))
-    parted = rng.permutation(n)[:n_part]
-    full_rows = np.setdiff1d(np.arange(n), parted)
-    model.eval()
-    data = _join(topple_inputs(model, train, index[full_rows], 0.0, noise, seed),
-                 topple_inputs(model, train, np.sort(index[parted]), 1.0, noise, seed + 1))
-    vidx = np.arange(len(val))
-    vdata = _join(topple_inputs(model, val, vidx, 0.0, noise, seed + 2),
-                  topple_inputs(model, val, vidx, 1.0, noise, seed + 3))
-    if log:
-        log(f"topple head: {len(data['label'])} training pushes ({data['label'].mean():.1%} toppled), "
-            f"{len(vdata['label'])} validation, inputs in {time.time() - t0:.0f} s")
+def _raw(head: ToppleHead, d: dict[str, np.ndarray]) -> torch.Tensor:
+    with torch.no_grad():
+        return head.raw_inputs(torch.from_numpy(d["feature"]).float(), torch.from_numpy(d["desc"]).float(),
+                               torch.from_numpy(d["push"]).float())
 
-    def raw(d: dict[str, np.ndarray]) -> torch.Tensor:
-        with torch.no_grad():
-            return head.raw_inputs(torch.from_numpy(d["feature"]).float(), torch.from_numpy(d["desc"]).float(),
-                                   torch.from_numpy(d["push"]).float())
 
-    x, y = raw(data), torch.from_numpy(data["label"])
-    xv, yv = raw(vdata), torch.from_numpy(vdata["label"])
+def _train_members(head: ToppleHead, x: torch.Tensor, y: torch.Tensor, xv: torch.Tensor, yv: torch.Tensor, *,
+                   epochs: int, batch_size: int, lr: float, weight_decay: float, seed: int,
+                   log: Optional[Callable[[str], None]]) -> None:
+    """Standardisation and novelty from x, then each member from its own seed, keeping its epoch of lowest
+    validation loss on (xv, yv)."""
     head.mean.copy_(x.mean(0))
     head.std.copy_(x.std(0).clamp_min(1e-6))
     head.set_novelty(x)
     loss_fn = torch.nn.functional.binary_cross_entropy_with_logits
+    zx, zv = (x - head.mean) / head.std, (xv - head.mean) / head.std
     for k, member in enumerate(head.members):
         gen = torch.Generator().manual_seed(seed * 1000 + k)
         for layer in member.modules():
@@ -93,7 +75,6 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
                 torch.nn.init.kaiming_uniform_(layer.weight, a=5 ** 0.5, generator=gen)
                 torch.nn.init.zeros_(layer.bias)
         opt = torch.optim.Adam(member.parameters(), lr=lr, weight_decay=weight_decay)
-        zx, zv = (x - head.mean) / head.std, (xv - head.mean) / head.std
         best, best_state = float("inf"), None
         for _ in range(epochs):
             member.train()
@@ -113,11 +94,125 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
         member.load_state_dict(best_state)
         if log:
             log(f"topple head member {k + 1}/{len(head.members)}: validation loss {best:.4f}")
+
+
+def _mean_prob(head: ToppleHead, x: torch.Tensor) -> np.ndarray:
+    """The members' mean probability, before the calibration."""
     with torch.no_grad():
-        prob = torch.sigmoid(head.member_logits(xv)).mean(0).numpy()
-    result = scores(prob, vdata["label"])
+        return torch.sigmoid(head.member_logits(x)).mean(0).numpy()
+
+
+def split_families(categories: np.ndarray, folds: int, seed: int = 0) -> list[list[str]]:
+    """The training families dealt into `folds` groups (shuffled by `seed`, sorted within a fold)."""
+    names = sorted(set(str(c) for c in categories))
+    if not 2 <= folds <= len(names):
+        raise ValueError(f"family folds must be in 2..{len(names)} (the training data has {len(names)} families: "
+                         f"{names}), got {folds}")
+    order = np.random.default_rng(seed).permutation(len(names))
+    return [sorted(names[i] for i in order[k::folds]) for k in range(folds)]
+
+
+def cross_validate(head: ToppleHead, data: dict[str, np.ndarray], vdata: dict[str, np.ndarray], folds: int, *,
+                   seed: int = 0, log: Optional[Callable[[str], None]] = print,
+                   **train: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-families-out: for each fold of families, a copy of `head` trained on the other families (early
+    stopping on their validation pushes) predicts the fold's training pushes. Returns (the members' mean
+    probability, label) of every training push, each predicted by a head that never saw its family."""
+    prob = np.full(len(data["label"]), np.nan)
+    for k, fold in enumerate(split_families(data["category"], folds, seed)):
+        out, vout = np.isin(data["category"], fold), np.isin(vdata["category"], fold)
+        fold_head = copy.deepcopy(head)
+        pick = {key: v[~out] for key, v in data.items()}
+        vpick = {key: v[~vout] for key, v in vdata.items()}
+        _train_members(fold_head, _raw(fold_head, pick), torch.from_numpy(pick["label"]), _raw(fold_head, vpick),
+                       torch.from_numpy(vpick["label"]), seed=seed + 100 * (k + 1), log=None, **train)
+        prob[out] = _mean_prob(fold_head, _raw(fold_head, {key: v[out] for key, v in data.items()}))
+        if log:
+            s = scores(prob[out], data["label"][out])
+            log(f"family fold {k + 1}/{folds} {fold}: {int(out.sum())} pushes, out-of-family F1 {_fmt(s['f1'])} "
+                f"(precision {_fmt(s['precision'])}, recall {_fmt(s['recall'])}), Brier {_fmt(s['brier'], 4)}")
+    return prob, data["label"]
+
+
+def fit_calibration(prob: np.ndarray, label: np.ndarray, iterations: int = 50) -> tuple[float, float]:
+    """(scale, shift) of the logistic regression of `label` on logit(prob) (Platt scaling), by Newton steps with
+    a small ridge toward the identity; raises ValueError when the labels are all of one kind."""
+    p = np.clip(np.asarray(prob, dtype=np.float64), 1e-6, 1.0 - 1e-6)
+    y = np.asarray(label, dtype=np.float64) > 0.5
+    if y.all() or not y.any():
+        raise ValueError("calibration needs pushes that toppled and pushes that did not")
+    x = np.c_[np.log(p / (1.0 - p)), np.ones(len(p))]
+    theta, prior, ridge = np.array([1.0, 0.0]), np.array([1.0, 0.0]), 1e-3 * len(p)
+    for _ in range(iterations):
+        q = 1.0 / (1.0 + np.exp(-(x @ theta)))
+        grad = x.T @ (q - y) + ridge * (theta - prior)
+        hess = (x * (q * (1.0 - q))[:, None]).T @ x + ridge * np.eye(2)
+        step = np.linalg.solve(hess, grad)
+        theta = theta - step
+        if np.abs(step).max() < 1e-9:
+            break
+    return float(theta[0]), float(theta[1])
+
+
+def _apply_calibration(prob: np.ndarray, ab: tuple[float, float]) -> np.ndarray:
+    p = np.clip(prob, 1e-7, 1.0 - 1e-7)
+    return 1.0 / (1.0 + np.exp(-(ab[0] * np.log(p / (1.0 - p)) + ab[1])))
+
+
+def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
+                    partial: float = 1.0 / 3.0, noise: float = 0.002, epochs: int = 120, batch_size: int = 512,
+                    lr: float = 3e-3, weight_decay: float = 1e-3, seed: int = 0, family_folds: int = 0,
+                    log: Optional[Callable[[str], None]] = print) -> dict[str, Any]:
+    """Fit model.topple (a ToppleHead) in place; returns validation scores. The rest of the model is frozen.
+
+    family_folds > 1: before the final fit, leave-families-out cross-validation (cross_validate) gives every
+    training push a probability from a head that never saw its family; the head's calibration is the Platt
+    scaling fitted on those (a head meets new families in use). The result then also holds the out-of-family
+    scores before ("out_of_family_raw") and after ("out_of_family") the calibration (the latter in-sample for
+    its two numbers) and the calibration itself.
+    """
+    head = model.topple
+    if not isinstance(head, ToppleHead):
+        raise ValueError("the model has no topple head (model.topple_head: true)")
+    t0 = time.time()
+    rng = np.random.default_rng(seed)
+    n = min(max_train, len(train))
+    index = np.sort(rng.choice(len(train), n, replace=False))
+    n_part = int(round(partial * n))
+    parted = rng.permutation(n)[:n_part]
+    full_rows = np.setdiff1d(np.arange(n), parted)
+    model.eval()
+    data = _join(topple_inputs(model, train, index[full_rows], 0.0, noise, seed),
+                 topple_inputs(model, train, np.sort(index[parted]), 1.0, noise, seed + 1))
+    vidx = np.arange(len(val))
+    vdata = _join(topple_inputs(model, val, vidx, 0.0, noise, seed + 2),
+                  topple_inputs(model, val, vidx, 1.0, noise, seed + 3))
+    if log:
+        log(f"topple head: {len(data['label'])} training pushes ({data['label'].mean():.1%} toppled), "
+            f"{len(vdata['label'])} validation, inputs in {time.time() - t0:.0f} s")
+    train_args: dict[str, Any] = {"epochs": epochs, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay}
+    extra: dict[str, Any] = {}
+    head.calibration.copy_(torch.tensor([1.0, 0.0]))
+    if family_folds:
+        cv_prob, cv_label = cross_validate(head, data, vdata, family_folds, seed=seed, log=log, **train_args)
+        ab = fit_calibration(cv_prob, cv_label)
+        extra = {"calibration": [round(ab[0], 4), round(ab[1], 4)], "family_folds": family_folds,
+                 "out_of_family_raw": scores(cv_prob, cv_label),
+                 "out_of_family": scores(_apply_calibration(cv_prob, ab), cv_label)}
+        if log:
+            before, after = extra["out_of_family_raw"], extra["out_of_family"]
+            log(f"calibration for new families: scale {ab[0]:.3f}, shift {ab[1]:.3f}; out-of-family F1 "
+                f"{_fmt(before['f1'])} -> {_fmt(after['f1'])}, Brier {_fmt(before['brier'], 4)} -> "
+                f"{_fmt(after['brier'], 4)}")
+    _train_members(head, _raw(head, data), torch.from_numpy(data["label"]), _raw(head, vdata),
+                   torch.from_numpy(vdata["label"]), seed=seed, log=log, **train_args)
+    if family_folds:
+        head.calibration.copy_(torch.tensor(extra["calibration"], dtype=torch.float32))
+    with torch.no_grad():
+        prob = head.calibrated(torch.from_numpy(_mean_prob(head, _raw(head, vdata)))).numpy()
+    result = {**scores(prob, vdata["label"]), **extra}
     result["seconds"] = round(time.time() - t0, 1)
-    result["train_pushes"] = int(len(y))
+    result["train_pushes"] = int(len(data["label"]))
     if log:
         f1, precision, recall = (_fmt(result[k]) for k in ("f1", "precision", "recall"))
         log(f"topple head: validation F1 {f1} (precision {precision}, recall {recall}), Brier "
@@ -137,8 +232,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fraction seen as one depth camera's partial view (default 1/3)")
     parser.add_argument("--epochs", type=int, default=60, help="epochs per ensemble member (default 60)")
     parser.add_argument("--members", type=int, default=5, help="ensemble members (default 5)")
+    parser.add_argument("--family-folds", type=int, default=3,
+                        help="leave-families-out folds whose predictions calibrate the head for new families "
+                             "(default 3; 0: no calibration)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+
+
+def _compact(result: dict[str, Any]) -> dict[str, Any]:
+    """Scores without their reliability tables (for the checkpoint's config)."""
+    return {k: (_compact(v) if isinstance(v, dict) else v) for k, v in result.items() if k != "reliability"}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -158,13 +261,16 @@ def run(args: argparse.Namespace) -> int:
     missing = [k for k in model.load_state_dict(state, strict=False).missing_keys if not k.startswith("topple.")]
     if missing:
         raise ValueError(f"{args.checkpoint}: weights do not fit the model config (missing {missing[:3]})")
+    folds = int(getattr(args, "family_folds", 0))
+    if folds == 1 or folds < 0:
+        raise ValueError(f"--family-folds must be 0 (no calibration) or at least 2, got {folds}")
     train, val = load_sims(args.data, ["train"]), load_sims(args.data, ["val"])
     result = fit_topple_head(model, train, val, max_train=args.max_train, partial=args.partial,
-                             epochs=args.epochs, seed=args.seed)
+                             epochs=args.epochs, seed=args.seed, family_folds=folds)
     config["topple_fit"] = {"source": ckpt["model_id"], "data": str(Path(args.data).resolve()),
                             "max_train": args.max_train, "partial": args.partial, "epochs": args.epochs,
-                            "members": args.members, "seed": args.seed,
-                            "validation": {k: v for k, v in result.items() if k != "reliability"}}
+                            "members": args.members, "seed": args.seed, "family_folds": folds,
+                            "validation": _compact(result)}
     model_id = save_checkpoint(args.out, model=model.eval(), config=config, dataset=ckpt.get("dataset", {}),
                                progress=ckpt.get("progress"), include_rng=False)
     print(f"wrote {args.out} (model_id {model_id}; dynamics of {ckpt['model_id']})")
