@@ -336,10 +336,14 @@ class Predictor:
 
     def rollout_batch(self, shapes: Union[ShapeCode, np.ndarray, Sequence[Union[ShapeCode, np.ndarray]]],
                       lin_vels: Any, ang_vels: Any, horizon: int = 60, positions: Any = None,
-                      orientations: Any = None) -> TrajectoryBatch:
+                      orientations: Any = None, head_timing: bool = True) -> TrajectoryBatch:
         """Batched roll-outs: one shape with many velocities, or many shapes (a sequence of codes or clouds).
 
         lin_vels / ang_vels: (B, 3) or (3,) (broadcast); positions (B, 3) or (3,); orientations (B, 4) or (4,).
+        head_timing (models with a topple head): True times the head's whole-push probability over a 60-step run,
+        so a shorter horizon is that run's prefix (what `rollout` gives); False rolls out only `horizon` steps and
+        reaches the whole-push probability by its last step (a planner wants the outcome of the push, not its
+        timing, and a 16-step search horizon then costs 16 steps, not 60).
         """
         horizon = self._check_horizon(horizon)
         if isinstance(shapes, ShapeCode) or (isinstance(shapes, np.ndarray) and shapes.ndim == 2):
@@ -370,7 +374,8 @@ class Predictor:
         p = np.broadcast_to(centroids, (b, 3)) if positions is None else _vectors(positions, 3, "positions", b)
         q = np.array([[0.0, 0.0, 0.0, 1.0]]) if orientations is None else _quaternions(orientations, "orientations", b)
         bc = lambda a: np.broadcast_to(a, (b,) + a.shape[1:])  # noqa: E731
-        return self._run(bc(feats), np.broadcast_to(headings, (b,)), bc(v), bc(w), bc(p), bc(q), horizon, None)
+        return self._run(bc(feats), np.broadcast_to(headings, (b,)), bc(v), bc(w), bc(p), bc(q), horizon, None,
+                         head_timing)
 
     def _check_observed(self, observed: Any, horizon: int) -> Optional[dict[str, np.ndarray]]:
         if observed is None:
@@ -395,14 +400,15 @@ class Predictor:
         return arrays if k else None
 
     def _run(self, feats: np.ndarray, headings: np.ndarray, v0: np.ndarray, w0: np.ndarray, p0: np.ndarray,
-             q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]]) -> TrajectoryBatch:
+             q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]],
+             head_timing: bool = True) -> TrajectoryBatch:
         """Roll out in frame C, then back to the table frame (all vectorised over the batch, numpy only: at batch 1
         the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead)."""
         from .learn.frames import world_to_c
 
         wanted = horizon
-        if self._topple is not None:  # the head's probability is for the whole push: time it over the full run
-            horizon = max(horizon, HEAD_TIMING_STEPS)
+        if self._topple is not None and head_timing:  # the head's probability is for the whole push: time it over
+            horizon = max(horizon, HEAD_TIMING_STEPS)  # the full run
         h = headings[:, None]
         obs_v = obs_w = None
         k = 0

@@ -343,3 +343,24 @@ def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
         assert short.positions.shape[1] == h + 1
         for name in ("positions", "orientations", "lin_vels", "ang_vels", "topple_prob"):
             assert np.allclose(getattr(short, name), getattr(full, name)[:, :h + 1], atol=1e-9), (h, name)
+
+
+def test_a_planner_roll_out_ends_at_the_whole_push_probability(fitted):
+    """head_timing=False (the planner's search): only `horizon` steps are rolled out and their maximum is the
+    head's whole-push probability (a push that topples after the search horizon still counts); the motion is
+    the full roll-out's prefix."""
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load(fitted[1])
+    cloud = _surface(trimesh.creation.box(extents=(0.05, 0.05, 0.2))) + [0.0, 0.0, 0.1]
+    code = pred.encode(cloud)
+    rng = np.random.default_rng(9)
+    v = np.c_[rng.uniform(-2, 2, (32, 2)), np.zeros(32)]
+    w = rng.normal(size=(32, 3))
+    full = pred.rollout_batch(code, v, w, 60)
+    short = pred.rollout_batch(code, v, w, 12, head_timing=False)
+    assert short.positions.shape[1] == 13
+    calm = full.topple_probability <= 0.5  # no tilt either way: the same motion
+    assert np.abs(short.positions[calm] - full.positions[calm, :13]).max() < 1e-9
+    assert np.allclose(short.topple_probability[calm], full.topple_probability[calm], atol=1e-9)
+    assert np.all(short.topple_prob[calm, :13].max(axis=1) >= full.topple_prob[calm, :13].max(axis=1) - 1e-12)
