@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
+import pytest
 import torch
 
 from physdyn_ros.conventions import DT, GRAVITY
@@ -23,7 +25,7 @@ def test_stepping_the_prior_is_the_closed_form_baseline():
     decel = torch.full((b,), mu * GRAVITY, dtype=torch.float64)
     pos, yaw = torch.zeros(b, 3, dtype=torch.float64), torch.zeros(b, dtype=torch.float64)
     for t in range(horizon):
-        dv, dw, dp, dr = sliding_step(v, w, decel, decel / torch.tensor(radius))
+        dv, dw, dp, dr = sliding_step(v, w, decel, decel / torch.tensor(radius), torch.zeros(b, dtype=torch.float64))
         v, w, pos, yaw = v + dv, w + dw, pos + dp, yaw + dr[:, 2]
         np.testing.assert_allclose(pos.numpy(), ref["pos"][:, t + 1], atol=1e-9)
         np.testing.assert_allclose(v.numpy(), ref["lin_vel"][:, t + 1], atol=1e-9)
@@ -34,6 +36,36 @@ def test_stepping_the_prior_is_the_closed_form_baseline():
     assert torch.all(v[:, :2].abs().sum(-1)[torch.linalg.vector_norm(torch.tensor(vel0), dim=-1) < 1.0] == 0)
 
 
+def test_the_coupled_prior_shares_friction_between_sliding_and_spinning():
+    """model.prior coupled (session 8): the ellipsoidal limit surface. Pure sliding and pure spinning decelerate
+    as in the sliding prior; an object sliding at v while spinning at w shares the friction: the speed decreases
+    by mu g v / |(v, r w)| per second, the spin by (mu g / r) r |w| / |(v, r w)| (the learned model, on the
+    decoupled prior, stopped the spin of a sliding object within a step: 3.2 -> 0.3 rad/s where pybullet kept
+    2.9). The numpy kernel's step (prior_into) is the same arithmetic."""
+    from physdyn_ros.learn.prior import prior_constants, prior_into
+
+    mu_g, r = 0.5 * GRAVITY, 0.05
+    decel = torch.tensor([mu_g] * 3, dtype=torch.float64)
+    spin = decel / r
+    one = torch.ones(3, dtype=torch.float64)
+    v = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    w = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 20.0], [0.0, 0.0, 3.2]], dtype=torch.float64)
+    dv, dw, dp, dr = sliding_step(v, w, decel, spin, one)
+    assert dv[0, 0].item() == pytest.approx(-mu_g * DT)  # pure sliding: mu g
+    assert dw[1, 2].item() == pytest.approx(-mu_g / r * DT, rel=1e-6)  # pure spin: mu g / r
+    norm = math.hypot(1.0, r * 3.2)
+    assert dv[2, 0].item() == pytest.approx(-mu_g / norm * DT, rel=1e-6)
+    assert dw[2, 2].item() == pytest.approx(-(mu_g / r) * (r * 3.2 / norm) * DT, rel=1e-6)
+    decoupled = sliding_step(v, w, decel, spin, torch.zeros(3, dtype=torch.float64))[1]
+    assert 3.2 + decoupled[2, 2].item() == 0.0 and 3.2 + dw[2, 2].item() > 2.0  # stopped vs kept turning
+    # prior_into (batch-1 numpy kernel) on the same state, in identity scales
+    ones = np.ones(19)
+    row, x = np.zeros(19), np.array([1.0, 0.0, 0.0, 0.0, 0.0, 3.2])
+    prior_into(row, x, prior_constants(mu_g, mu_g / r, ones, ones, ones, DT, coupling=1.0))
+    assert row[0] == pytest.approx(dv[2, 0].item(), rel=1e-9) and row[5] == pytest.approx(dw[2, 2].item(), rel=1e-9)
+    assert row[6] == pytest.approx(dp[2, 0].item(), rel=1e-9) and row[11] == pytest.approx(dr[2, 2].item(), rel=1e-9)
+
+
 def test_decelerations_from_the_cloud():
     cloud = torch.tensor([[[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [0.0, -0.1, 0.05]]])
     decel, spin = decelerations(cloud, 0.5)
@@ -42,12 +74,12 @@ def test_decelerations_from_the_cloud():
     assert torch.isfinite(decelerations(thin, 0.5)[1]).all()  # a degenerate cloud: bounded, not infinite
 
 
-def _hybrid(seed: int = 0, **extra):
+def _hybrid(seed: int = 0, prior: str = "sliding", **extra):
     from physdyn_ros.learn.model import DynamicsModel, ModelConfig
 
     torch.manual_seed(seed)
     cfg = ModelConfig(name="hybrid", num_points=64, pointnet=(16, 32), shape_mlp=(16, 8), hidden_size=24,
-                      num_layers=2, geometry=True, prior="sliding", com_head=True, **extra)
+                      num_layers=2, geometry=True, prior=prior, com_head=True, **extra)
     stats = {"vel": 0.8, "angvel": 5.0, "d_vel": 0.05, "d_angvel": 0.4, "d_pos": 0.03, "d_rot": 0.2, "cloud": 0.08}
     return DynamicsModel(cfg, stats)
 
@@ -89,6 +121,28 @@ def test_an_untrained_hybrid_model_is_the_analytic_baseline_in_every_kernel():
         tf = model.denormalize(model.teacher_forced(feature, torch.tensor(ref["lin_vel"][:, :-1], dtype=torch.float32),
                                                     torch.tensor(ref["ang_vel"][:, :-1], dtype=torch.float32)))
     np.testing.assert_allclose(tf["d_pos"].numpy(), np.diff(ref["pos"], axis=1), atol=2e-5)
+
+
+def test_every_kernel_runs_the_coupled_prior_alike():
+    """model.prior coupled in the three roll-out kernels (TorchScript autograd, fused batch, numpy batch 1): the
+    same trajectories, and the spin of a sliding object outlasts the decoupled prior's."""
+    rng = np.random.default_rng(3)
+    model, plain = _hybrid(prior="coupled").eval(), _hybrid(prior="sliding").eval()
+    b, horizon = 4, 30
+    cloud = _cloud(b, rng)
+    v0 = torch.tensor(np.column_stack([rng.uniform(0.8, 1.5, b), np.zeros((b, 2))]), dtype=torch.float32)
+    w0 = torch.tensor(np.column_stack([np.zeros((b, 2)), rng.uniform(2.0, 6.0, b)]), dtype=torch.float32)
+    feature = model.encode(cloud).detach()
+    runs = {"autograd": model.rollout_raw(feature, v0, w0, horizon)[0].detach()}
+    with torch.inference_mode():
+        runs["fused"] = model.rollout_raw(feature, v0, w0, horizon)[0]
+        runs["numpy"] = torch.cat([model.rollout_raw(feature[i:i + 1], v0[i:i + 1], w0[i:i + 1], horizon)[0]
+                                   for i in range(b)])
+        decoupled = plain.denormalize(plain.rollout_raw(feature, v0, w0, horizon)[0])
+    turns = {name: model.denormalize(raw)["d_rot"][..., 2].sum(1) for name, raw in runs.items()}
+    for name, turn in turns.items():
+        np.testing.assert_allclose(turn.numpy(), turns["autograd"].numpy(), rtol=1e-4, err_msg=name)
+    assert torch.all(turns["numpy"].abs() > 1.2 * decoupled["d_rot"][..., 2].sum(1).abs())
 
 
 def test_hybrid_model_trains_and_its_com_head_learns(tmp_path):

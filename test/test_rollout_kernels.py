@@ -37,7 +37,7 @@ def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=Non
         w_x = fast["w_x"]
         const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])
         # the differentiable kernel, with the sliding prior of models that have one (the shipped model does)
-        prior = torch.stack(m._prior_decel(feature), -1) if m.cfg.prior == "sliding" else x0.new_zeros(0, 2)
+        prior = torch.stack(m._prior_decel(feature), -1) if m.cfg.prior != "none" else x0.new_zeros(0, 3)
         return model_module._lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
                                           fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps),
                                           prior, fast["in"], fast["out"])

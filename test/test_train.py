@@ -220,6 +220,18 @@ def test_fine_tune_starts_from_the_init_checkpoint(overfit_run, tmp_path):
         train(cfg, tiny_dataset(), tmp_path / "ft3", resume=str(init), init=str(init), progress=False)
 
 
+def test_a_fine_tune_may_swap_the_physics_prior_and_nothing_else():
+    """The prior has no weights: a fine-tune may move a sliding-prior model to the coupled prior (session 8) or
+    another friction; a checkpoint written before newer config keys existed compares with their defaults."""
+    from physdyn_ros.learn.train import _same_weights
+
+    base = {"name": "m", "geometry": True, "prior": "sliding", "hidden_size": 32}
+    assert _same_weights(base, {**base, "prior": "coupled", "prior_friction": 0.4})
+    assert _same_weights(base, {**base, "topple_head": False, "topple_members": 5})
+    assert not _same_weights(base, {**base, "hidden_size": 16})
+    assert not _same_weights({**base, "prior": "none"}, {**base, "prior": "coupled"})
+
+
 def test_shipped_options_train_the_skip_path_and_the_loss_falls(tmp_path):
     """input_skip + w_abs (config/model_default.yaml): the zero-initialised skip learns, the loss falls."""
     cfg = tiny_config(model={"input_skip": True}, loss={"w_abs": 2.0, "relative_to": "target", "eps": 0.1},

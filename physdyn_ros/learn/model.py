@@ -38,7 +38,7 @@ CELLS = ("lstm", "mlp")
 #: the L2 cache; larger batches run block after block.
 KERNEL_ROWS = 256
 NORMS = ("batch", "layer", "none")
-PRIORS = ("none", "sliding")
+PRIORS = ("none", "sliding", "coupled")
 #: Cloud descriptors appended to the shape feature (model.geometry), in units of the cloud scale, from the cloud in
 #: C centred at its centroid: RMS horizontal radius (spin friction's lever arm), height, height of the centroid
 #: over the lowest point, largest horizontal radius.
@@ -73,7 +73,8 @@ class ModelConfig:
     # appended to the learned shape feature: what decides sliding and toppling, and exact for any shape family.
     geometry: bool = False
     # "sliding": the outputs are a residual on Coulomb sliding (learn/prior.py; needs geometry for the lever
-    # arm), with friction prior_friction. Zero residual at start = the analytic sliding baseline.
+    # arm), with friction prior_friction. Zero residual at start = the analytic sliding baseline. "coupled": the
+    # same with sliding and spinning sharing the friction (ellipsoidal limit surface, learn/prior.py).
     prior: str = "none"
     prior_friction: float = 0.5
     # A head that estimates the centre of mass from the cloud (relative to its centroid, in C): the start of a
@@ -99,8 +100,8 @@ class ModelConfig:
             raise ValueError("model.pointnet and model.shape_mlp need at least one positive width each")
         if self.prior not in PRIORS:
             raise ValueError(f"model.prior must be one of {PRIORS}, got {self.prior!r}")
-        if self.prior == "sliding" and not self.geometry:
-            raise ValueError("model.prior sliding needs model.geometry: true (the lever arm of spin friction)")
+        if self.prior != "none" and not self.geometry:
+            raise ValueError(f"model.prior {self.prior} needs model.geometry: true (the lever arm of spin friction)")
         if not 0.0 < float(self.prior_friction) <= 2.0:
             raise ValueError(f"model.prior_friction must be in (0, 2], got {self.prior_friction}")
         for key in ("num_points", "hidden_size", "num_layers", "mlp_layers", "max_horizon", "topple_hidden",
@@ -190,7 +191,7 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
         if w_skip.shape[0] > 0:
             y = torch.addmm(y, x, w_skip)
         if prior.shape[0] > 0:
-            p = prior_raw(x, prior[:, 0], prior[:, 1], scale_in, scale_out)
+            p = prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
             y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
         outs.append(y)
         if t < x_obs.shape[1]:
@@ -261,7 +262,7 @@ def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tenso
         y = ys[:, t]
         torch.addmm(b_head, z, w_head, out=y)
         if prior.shape[0] > 0:  # the sliding prior (model.prior), as in _lstm_rollout
-            y[:, :12].add_(prior_raw(x, prior[:, 0], prior[:, 1], scale_in, scale_out))
+            y[:, :12].add_(prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out))
         if t < observed:
             x.copy_(x_obs[:, t])
         else:
@@ -547,11 +548,11 @@ class DynamicsModel(nn.Module):
         """com_offset, or zeros (the centroid itself) for a model without a centre-of-mass head (B, 3)."""
         return self.com_offset(feature) if self.com is not None else feature.new_zeros(len(feature), 3)
 
-    def _prior_decel(self, feature: Tensor) -> Tuple[Tensor, Tensor]:
-        """(mu g, mu g / r) per object of the sliding prior, r from the feature's geometry (model.prior)."""
+    def _prior_decel(self, feature: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+        """(mu g, mu g / r, coupling 0 or 1) per object of the prior, r from the feature's geometry (model.prior)."""
         radius = (feature[:, self.learned_dim] * self._scale("cloud")).clamp_min(MIN_RADIUS)
         decel = torch.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
-        return decel, decel / radius
+        return decel, decel / radius, torch.full_like(radius, float(self.cfg.prior == "coupled"))
 
     def _inputs(self, vel: Tensor, angvel: Tensor, fast: Optional[dict[str, Any]] = None) -> Tensor:
         scale = (fast or self._scale_vectors())["in"]
@@ -575,9 +576,9 @@ class DynamicsModel(nn.Module):
         y = self.head(self.lstm(x)[0]) if self.cfg.cell == "lstm" else self.mlp(x)
         if self.skip is not None:
             y = y + self.skip(x[..., :6])
-        if self.cfg.prior == "sliding":
-            decel, spin = self._prior_decel(feature)
-            p = prior_raw(x[..., :6], decel[:, None], spin[:, None], scales["in"], scales["out"])
+        if self.cfg.prior != "none":
+            decel, spin, coupling = self._prior_decel(feature)
+            p = prior_raw(x[..., :6], decel[:, None], spin[:, None], coupling[:, None], scales["in"], scales["out"])
             y = y + torch.cat([p, torch.zeros_like(p[..., :1])], -1)
         return y
 
@@ -598,8 +599,8 @@ class DynamicsModel(nn.Module):
         else:
             assert obs_angvel is not None, "obs_vel and obs_angvel go together"
             x_obs = self._inputs(obs_vel, obs_angvel, fast)[:, :steps]
-        prior = (torch.stack(self._prior_decel(feature), -1) if self.cfg.prior == "sliding"
-                 else x0.new_zeros(0, 2))
+        prior = (torch.stack(self._prior_decel(feature), -1) if self.cfg.prior != "none"
+                 else x0.new_zeros(0, 3))
         if self.cfg.cell == "lstm":
             if torch.is_grad_enabled():  # training / gradients: the differentiable kernel
                 w_x = fast["w_x"]
@@ -619,7 +620,7 @@ class DynamicsModel(nn.Module):
             if self.skip is not None:
                 y = y + self.skip(x)
             if prior.shape[0] > 0:
-                p = prior_raw(x, prior[:, 0], prior[:, 1], fast["in"], fast["out"])
+                p = prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], fast["in"], fast["out"])
                 y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
             outs.append(y)
             x = x_obs[:, t] if t < x_obs.shape[1] else x + y[:, :6] * fast["gain"]
@@ -630,12 +631,13 @@ class DynamicsModel(nn.Module):
     def _numpy_kernel(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarray,
                       steps: int, prior: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
         """Batch 1: feature (1, F), x0 (6,), x_obs (K, 6) float32 -> raw (steps, 13), inputs used (steps + 1, 6).
-        prior: (1, 2) (mu g, mu g / r) of the sliding prior, or None / empty."""
+        prior: (1, 3) (mu g, mu g / r, coupling) of the prior, or None / empty."""
         w0 = kernel["np_w0"].copy()  # a private copy: the layer-0 bias row carries this object's feature term
         w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
         args = None
         if prior is not None and len(prior):
-            args = prior_constants(prior[0, 0], prior[0, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"])
+            args = prior_constants(prior[0, 0], prior[0, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"],
+                                   coupling=float(prior[0, 2]))
         return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps, args)
 
     def _fused_kernel(self, kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor,
@@ -673,11 +675,12 @@ class DynamicsModel(nn.Module):
                         assert obs_angvel is not None, "obs_vel and obs_angvel go together"
                         x_obs = (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps]
                     prior = None
-                    if self.cfg.prior == "sliding":  # _prior_decel in float32 numpy (torch: ~50 us of dispatch)
+                    if self.cfg.prior != "none":  # _prior_decel in float32 numpy (torch: ~50 us of dispatch)
                         radius = np.maximum(np.asarray(feature, np.float32)[:, self.learned_dim] * kernel["np_cloud"],
                                             np.float32(MIN_RADIUS))
                         decel = np.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
-                        prior = np.stack([decel, decel / radius], -1)
+                        coupling = np.full_like(radius, float(self.cfg.prior == "coupled"))
+                        prior = np.stack([decel, decel / radius, coupling], -1)
                     raw_np, xs_np = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs,
                                                        int(steps), prior)
                     return raw_np[None], xs_np[None], {"in": scale_in, "out": kernel["np_out"]}

@@ -1,4 +1,5 @@
-"""Coulomb sliding as a per-step prior: the network predicts a residual on top of it (model.prior: sliding).
+"""Coulomb sliding as a per-step prior: the network predicts a residual on top of it (model.prior: sliding,
+coupled).
 
 Hybrids of an analytic model and a learned residual beat both pure physics and pure learning on pushing
 (Ajay et al. 2018, 2019), and on shapes outside the training families plain Coulomb sliding was the best
@@ -10,6 +11,13 @@ The prior is exact constant-deceleration kinematics over one step of dt, in fram
   * vertical motion and tilt: no prior (zero); the residual predicts them, and toppling.
 So a network whose residual is zero (the zero-initialised head) starts as the analytic sliding baseline
 (learn/baselines.analytic_sliding; test_prior.py checks that stepping this prior reproduces it).
+
+model.prior coupled (session 8): one friction budget for sliding and spinning, the ellipsoidal limit surface
+of a contact patch (Goyal et al. 1991; Lynch et al. 1992): with s = |v_xy| and the lever r = (mu g) / (spin
+deceleration), the speed decreases by mu g s / |(s, r w_z)| per second and the spin by (mu g / r) r |w_z| /
+|(s, r w_z)|. Pure sliding and pure spinning are unchanged; an object that slides while it turns keeps turning
+(the decoupled prior stopped a 3.2 rad/s spin of an object sliding at 1 m/s within one step, pybullet kept 2.9
+rad/s: bench_planning's first pushes turned 1-5x what the model predicted), and one that spins drifts on.
 """
 from __future__ import annotations
 
@@ -27,14 +35,23 @@ MIN_RADIUS = 0.01
 SPEED_EPS = 1e-6
 
 
-def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
+def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor, coupling: Tensor,
                  dt: float = DT) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
     """One step of the prior. vel, angvel (..., 3) physical in C; decel (...,) = mu g (m/s^2); spin_decel
-    (...,) = mu g / r (rad/s^2). Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
-    a = decel[..., None]
+    (...,) = mu g / r (rad/s^2); coupling (...,) 0 (model.prior sliding: the two decelerations independent) or 1
+    (coupled: see the module docstring). Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
     vxy = vel[..., :2]
     # + SPEED_EPS^2 under the root: a finite gradient at rest (windows end in rest frames with v = 0 exactly)
     speed = torch.sqrt((vxy * vxy).sum(-1, keepdim=True) + 1e-12)  # 1e-12 = SPEED_EPS ** 2 (TorchScript: a literal)
+    wz = angvel[..., 2:3]
+    w_abs = wz.abs()
+    c = coupling[..., None]
+    # friction shared between sliding and spinning (ellipsoidal limit surface, lever r = mu g / spin_decel):
+    # shares speed / |(speed, r w)| and r |w| / |(speed, r w)|; c = 0 leaves both decelerations exactly as they were
+    lever_w = decel[..., None] / spin_decel[..., None].clamp_min(1e-9) * w_abs
+    norm = torch.sqrt(speed * speed + lever_w * lever_w)
+    a = decel[..., None] * (1.0 - c + c * speed / norm)
+    alpha = spin_decel[..., None] * (1.0 - c + c * lever_w / norm)
     direction = vxy / speed
     t_slide = torch.minimum(speed / a.clamp_min(1e-9), torch.full_like(speed, dt))
     dist = speed * t_slide - 0.5 * a * t_slide * t_slide
@@ -43,9 +60,6 @@ def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
     # new - old (not a change of speed times the direction): a stopped object's velocity is then exactly 0
     d_vel = torch.cat([torch.clamp(speed - a * dt, min=0.0) * direction - vxy, zeros1], -1)
 
-    alpha = spin_decel[..., None]
-    wz = angvel[..., 2:3]
-    w_abs = wz.abs()
     sign = torch.sign(wz)
     t_spin = torch.minimum(w_abs / alpha.clamp_min(1e-9), torch.full_like(w_abs, dt))
     d_yaw = sign * (w_abs * t_spin - 0.5 * alpha * t_spin * t_spin)
@@ -64,28 +78,33 @@ def decelerations(cloud_c: Tensor, friction: float) -> Tuple[Tensor, Tensor]:
     return decel, decel / radius
 
 
-def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, scale_in: Tensor, scale_out: Tensor,
+def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, coupling: Tensor, scale_in: Tensor, scale_out: Tensor,
               dt: float = DT) -> Tensor:
     """The prior in the network's normalised spaces: inputs x (..., 6) -> outputs (..., 12) (raw columns 0:12)."""
     v = x[..., :3] * scale_in[:3]
     w = x[..., 3:6] * scale_in[3:6]
-    d_vel, d_angvel, d_pos, d_rot = sliding_step(v, w, decel, spin_decel, dt)
+    d_vel, d_angvel, d_pos, d_rot = sliding_step(v, w, decel, spin_decel, coupling, dt)
     return torch.cat([d_vel, d_angvel, d_pos, d_rot], -1) / scale_out[:12]
 
 
-def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT) -> tuple:
+def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT,
+                    coupling: float = 0.0) -> tuple:
     """The numbers prior_into needs, gathered once per roll-out."""
     si, so, g = [float(v) for v in scale_in], [float(v) for v in scale_out], [float(v) for v in gain]
     return (float(decel), float(spin_decel), si[0], si[1], si[5], 1 / so[0], 1 / so[1], 1 / so[5], 1 / so[6],
-            1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt))
+            1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt), float(coupling))
 
 
 def prior_into(row, x, c: tuple) -> None:
     """prior_raw added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
     next input, through the feedback gain); only the six non-zero components, as Python floats (~3 us a step)."""
-    decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt = c
+    decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt, coupling = c
     vx, vy, wz = float(x[0]) * s0, float(x[1]) * s1, float(x[5]) * s5
     speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
+    if coupling:  # sliding_step's shared friction
+        lever_w = decel / max(spin, 1e-9) * abs(wz)
+        norm = math.sqrt(speed * speed + lever_w * lever_w)
+        decel, spin = decel * speed / norm, spin * lever_w / norm
     t = min(speed / decel, dt) if decel > 0 else dt
     dist = speed * t - 0.5 * decel * t * t
     new = max(speed - decel * dt, 0.0)

@@ -337,6 +337,23 @@ def _device(device: str, d: Dist) -> torch.device:
     return torch.device("cpu")
 
 
+def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Two model configs whose weights are interchangeable: equal but for the physics prior (no weights of its
+    own), which a fine-tune may swap between its two kinds or give another friction. Keys a checkpoint written
+    before they existed lacks count as their defaults."""
+    from dataclasses import asdict
+
+    from .model import ModelConfig
+
+    a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
+    priors = {"sliding", "coupled"}
+    if a.get("prior", "none") in priors and b.get("prior", "none") in priors:
+        drop = ("prior", "prior_friction")
+        a = {k: v for k, v in a.items() if k not in drop}
+        b = {k: v for k, v in b.items() if k not in drop}
+    return a == b
+
+
 def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
                        init: Optional[str]) -> tuple[Optional[dict[str, Any]], Optional[dict[str, Any]]]:
     """The checkpoint to resume (`resume`: its model, loss and data sections must equal cfg's) and the one to
@@ -354,8 +371,9 @@ def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
         if resume is not None:
             raise ValueError("--init starts a new run from a checkpoint's weights; it cannot be combined with --resume")
         base = load_checkpoint(init, map_location="cpu")
-        if base["config"].get("model") != cfg["model"]:
-            raise CheckpointError(f"--init {init}: its model config differs from the requested one")
+        if not _same_weights(base["config"].get("model") or {}, cfg["model"]):
+            raise CheckpointError(f"--init {init}: its model config differs from the requested one (only the "
+                                  "prior's kind, sliding or coupled, and its friction may change in a fine-tune)")
     return ckpt, base
 
 
