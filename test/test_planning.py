@@ -166,6 +166,8 @@ def test_planner_runs_on_the_learned_model_and_refines_with_gradients(tiny_predi
         np.testing.assert_allclose(replay.positions[-1], plan.final_position, atol=1e-3)  # float32, batched vs single
     # refinement starts from the same CEM result and re-scores its iterates with the planner's batch
     assert refined.rollouts > base.rollouts
+    # review of session 8: a refined push replaced the checked one without the robustness check (spread 0)
+    assert refined.spread > 0 and base.spread > 0
 
 
 def test_online_adapter_feeds_observed_steps(tiny_predictor):

@@ -287,7 +287,8 @@ def test_batch1_numpy_kernel_equals_its_previous_version_bit_for_bit(shipped, pu
             else np.zeros((0, 6), np.float32)
         w0 = kernel["np_w0"].copy()
         w0[6] = feature[i].numpy() @ kernel["np_w_feature"] + kernel["np_b0"]
-        args = prior_constants(prior[i, 0], prior[i, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"])
+        args = prior_constants(prior[i, 0], prior[i, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"],
+                               coupling=float(prior[i, 2]))  # the shipped model's coupled prior
         ref = previous_numpy_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
         got = model_module._numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
         assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1]), i

@@ -5,19 +5,19 @@
     plan.lin_vel, plan.ang_vel, plan.impulse, plan.contact_point, plan.final_pose, plan.topple_probability
 
 Search: the cross-entropy method (CEM) over four numbers per candidate push, (vx, vy, f, h): the horizontal
-velocity of the COM, where the line of push passes the COM (a fraction f in [-1, 1] of the object's extent
-across the push at that height) and the contact height h (a fraction of the heights the pusher can reach on
-this object, config min/max_contact_height). The contact point is the first observed surface point on that
-line (planning.body), and the angular velocity follows from the impulse there: every candidate is a push a
-single contact can make; a low contact tips the object back against its topple. Each iteration rolls all
-candidates out with one `rollout_batch` call and keeps the elite fraction; the first iteration puts half its
-candidates around the Coulomb-sliding solution (`_Search.analytic_seeds`: the speed sqrt(2 mu g d) toward the
-goal and, per contact height, the offset whose spin turns the object to the goal's yaw under sliding) and half
-around the straight-line guess, gentle and low pushes included; later ones sample a Gaussian fitted to the
-elites. Iterations stop when the time budget would be exceeded by the next one (cost per rolled-out step is
-measured on the fly). The learned model rolls out only the search horizon (`head_timing=False`: its topple
-probability over those steps is the whole push's), not the 60 steps a timed prediction needs: 3-4x the
-candidates per budget (bench_planning's first pushes: 350-480 roll-outs in 0.2 s against 90-170).
+velocity of the COM, where the line of push passes the COM (a fraction f in [-1, 1] of the object's extent across
+the push at that height) and the contact height h (a fraction of the heights the pusher can reach on this object,
+config min/max_contact_height). The contact point is the first observed surface point on that line (planning.body),
+and the angular velocity follows from the impulse there: every candidate is a push a single contact can make; a low
+contact tips the object back against its topple. Each iteration rolls all candidates out with one `rollout_batch`
+call and keeps the elite fraction; the first iteration puts up to 16 candidates (at most half) at the Coulomb-
+sliding solution (`_Search.analytic_seeds`: the speed sqrt(2 mu g d) toward the goal and, per contact height, the
+offset whose spin turns the object to the goal's yaw under sliding; each seed and three jittered copies), the rest
+around the straight-line guess, gentle and low pushes included; later ones sample a Gaussian fitted to the elites.
+Iterations stop when the time budget would be exceeded by the next one (cost per rolled-out step is measured on the
+fly). The learned model rolls out only the search horizon (`head_timing=False`: its topple probability over those
+steps is the whole push's), not the 60 steps a timed prediction needs: 3-4x the candidates per budget
+(bench_planning's first pushes: 350-480 roll-outs in 0.2 s against 90-170).
 
 Robustness: the best `robust_candidates` distinct elites are rolled out again under `robust_samples` small
 perturbations each (speed, direction, offset, height: what a robot's execution and the perception get wrong).
@@ -508,9 +508,10 @@ class _Search:
 
     # -- candidates --------------------------------------------------------------------------------------
     def _first(self, n: int) -> np.ndarray:
-        """(n, 4) params (vx, vy, f, h): half around the Coulomb-sliding solution (analytic_seeds: the speed and the
-        offset that slide to the goal and turn to its yaw, at several heights), half a broad spread around the
-        straight-line push, gentle and low pushes included (they are the ones that do not topple tall objects)."""
+        """(n, 4) params (vx, vy, f, h): up to four per seed (at most half of n) at the Coulomb-sliding solution
+        (analytic_seeds: the speed and the offset that slide to the goal and turn to its yaw, at several heights;
+        each seed and three jittered copies), the rest a broad spread around the straight-line push, gentle and
+        low pushes included (they are the ones that do not topple tall objects)."""
         seeds = self.analytic_seeds()
         n_seed = min(n // 2, 4 * len(seeds))
         n_wide = n - n_seed
@@ -523,7 +524,8 @@ class _Search:
         if n_seed == 0:
             return wide
         near = seeds[np.arange(n_seed) % len(seeds)].copy()
-        near[len(seeds):] += self.rng.normal(0.0, 1.0, (n_seed - len(seeds), 4)) * np.array(
+        exact = min(len(seeds), n_seed)
+        near[exact:] += self.rng.normal(0.0, 1.0, (n_seed - exact, 4)) * np.array(
             [0.05 * self.speed0, 0.05 * self.speed0, 0.05, 0.05])  # the seeds themselves, then jittered copies
         return np.concatenate([near, wide])
 
@@ -677,7 +679,9 @@ class _Search:
         safe = [c for c in chosen if c.robust_topple <= cfg.max_topple_probability]
         if not safe:
             calm = sorted((c for c in self.seen if c.topple <= 0.5 * cfg.max_topple_probability), key=lambda c: c.cost)
-            fallback = [c for c in _distinct(calm, k) if all(c is not o for o in chosen)]
+            # within the budget if it allows (at least one candidate: a refusal must have looked)
+            room = max(1, min(k, self._batch_size(self.deadline) // m))
+            fallback = [c for c in _distinct(calm, k) if all(c is not o for o in chosen)][:room]
             if fallback:
                 self._perturb(fallback, m)
                 safe = [c for c in fallback if c.robust_topple <= cfg.max_topple_probability]

@@ -91,4 +91,11 @@ def refine_candidate(search: "_Search", best: "_Candidate") -> "_Candidate":
     # re-score the last few iterates with the planner's own (batched, exact) evaluation
     cands = search.evaluate(np.array(params[-4:]))
     winner = min(cands, key=lambda c: c.cost)
-    return winner if winner.cost < best.cost else best
+    if winner.cost >= best.cost:
+        return best
+    cfg = search.cfg
+    if search.checked:  # the refined push passes the robustness check the CEM's winner passed, or is not taken
+        search._perturb([winner], cfg.robust_samples)
+        if winner.robust_topple > cfg.max_topple_probability:
+            return best
+    return winner
