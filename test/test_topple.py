@@ -326,18 +326,22 @@ def test_gradient_refinement_reads_the_dynamics_part_of_a_headed_code(fitted):
     assert refined.rollouts > base.rollouts
 
 
-def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
-    """Review finding: the head's whole-push probability was squeezed into the requested horizon (horizon 1 read
-    'toppled by 67 ms' with the head's probability). A short roll-out is now the prefix of the 60-step one."""
+def _tall_box_pushes(fitted, seed: int):
+    """(predictor, code, v, w, 60-step batch) of 32 random pushes of a 5 x 5 x 20 cm box with the fitted head."""
     from physdyn_ros.predictor import Predictor
 
     pred = Predictor.load(fitted[1])
-    cloud = _surface(trimesh.creation.box(extents=(0.05, 0.05, 0.2))) + [0.0, 0.0, 0.1]
-    code = pred.encode(cloud)
-    rng = np.random.default_rng(8)
+    code = pred.encode(_surface(trimesh.creation.box(extents=(0.05, 0.05, 0.2))) + [0.0, 0.0, 0.1])
+    rng = np.random.default_rng(seed)
     v = np.c_[rng.uniform(-2, 2, (32, 2)), np.zeros(32)]
     w = rng.normal(size=(32, 3))
-    full = pred.rollout_batch(code, v, w, 60)
+    return pred, code, v, w, pred.rollout_batch(code, v, w, 60)
+
+
+def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
+    """Review finding: the head's whole-push probability was squeezed into the requested horizon (horizon 1 read
+    'toppled by 67 ms' with the head's probability). A short roll-out is now the prefix of the 60-step one."""
+    pred, code, v, w, full = _tall_box_pushes(fitted, seed=8)
     for h in (1, 5, 30):
         short = pred.rollout_batch(code, v, w, h)
         assert short.positions.shape[1] == h + 1
@@ -349,15 +353,7 @@ def test_a_planner_roll_out_ends_at_the_whole_push_probability(fitted):
     """head_timing=False (the planner's search): only `horizon` steps are rolled out and their maximum is the
     head's whole-push probability (a push that topples after the search horizon still counts); the motion is
     the full roll-out's prefix."""
-    from physdyn_ros.predictor import Predictor
-
-    pred = Predictor.load(fitted[1])
-    cloud = _surface(trimesh.creation.box(extents=(0.05, 0.05, 0.2))) + [0.0, 0.0, 0.1]
-    code = pred.encode(cloud)
-    rng = np.random.default_rng(9)
-    v = np.c_[rng.uniform(-2, 2, (32, 2)), np.zeros(32)]
-    w = rng.normal(size=(32, 3))
-    full = pred.rollout_batch(code, v, w, 60)
+    pred, code, v, w, full = _tall_box_pushes(fitted, seed=9)
     short = pred.rollout_batch(code, v, w, 12, head_timing=False)
     assert short.positions.shape[1] == 13
     calm = full.topple_probability <= 0.5  # no tilt either way: the same motion
