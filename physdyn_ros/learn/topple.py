@@ -30,6 +30,15 @@ NOVELTY_QUANTILE = 0.995
 RANGE_MARGIN = 1.05
 
 
+def apply_calibration(prob: np.ndarray, scale: float, shift: float) -> np.ndarray:
+    """Probabilities (B,) through a (scale, shift) calibration of their logit (ToppleHead.calibration); the
+    identity returns them unchanged, bit for bit."""
+    if scale == 1.0 and shift == 0.0:
+        return prob
+    p = np.clip(prob, 1e-7, 1.0 - 1e-7)
+    return expit(scale * np.log(p / (1.0 - p)) + shift)
+
+
 def _squash(x: Tensor) -> Tensor:
     """Signed log: physical inputs span orders of magnitude (mm-scale reaches, 10 m/s pushes)."""
     return torch.sign(x) * torch.log1p(10.0 * x.abs())
@@ -163,11 +172,7 @@ class ToppleHead(nn.Module):
         h1 = np.maximum(z @ w["w1"] + w["b1"], 0.0).reshape(len(z), members, -1)  # (B, M, H)
         h2 = np.maximum(np.einsum("bmi,mij->bmj", h1, w["w2"]) + w["b2"], 0.0)
         logits = np.einsum("bmj,mj->bm", h2, w["w3"]) + w["b3"]
-        prob = np.mean(expit(logits), axis=1)  # no overflow warning for extreme logits
-        a, b = w["calibration"]
-        if a != 1.0 or b != 0.0:
-            p = np.clip(prob, 1e-7, 1.0 - 1e-7)
-            prob = expit(a * np.log(p / (1.0 - p)) + b)
+        prob = apply_calibration(np.mean(expit(logits), axis=1), *w["calibration"])  # expit: no overflow warning
         combined = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", z, w["precision"], z), 0.0)) / w["scale"]
         novelty = np.maximum(combined, np.max(np.abs(x - w["centre"]) / w["radius"], axis=1))
         return prob, novelty

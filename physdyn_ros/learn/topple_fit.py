@@ -18,7 +18,7 @@ import torch
 from .evaluate import _fmt, calibration, topple_scores
 from .model import DynamicsModel
 from .support import push_quantities, support_descriptors
-from .topple import ToppleHead
+from .topple import ToppleHead, apply_calibration
 from .windows import SimArrays, sequences
 
 
@@ -154,11 +154,6 @@ def fit_calibration(prob: np.ndarray, label: np.ndarray, iterations: int = 50) -
     return float(theta[0]), float(theta[1])
 
 
-def _apply_calibration(prob: np.ndarray, ab: tuple[float, float]) -> np.ndarray:
-    p = np.clip(prob, 1e-7, 1.0 - 1e-7)
-    return 1.0 / (1.0 + np.exp(-(ab[0] * np.log(p / (1.0 - p)) + ab[1])))
-
-
 def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
                     partial: float = 1.0 / 3.0, noise: float = 0.002, epochs: int = 120, batch_size: int = 512,
                     lr: float = 3e-3, weight_decay: float = 1e-3, seed: int = 0, family_folds: int = 0,
@@ -198,7 +193,7 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
         ab = fit_calibration(cv_prob, cv_label)
         extra = {"calibration": [round(ab[0], 4), round(ab[1], 4)], "family_folds": family_folds,
                  "out_of_family_raw": scores(cv_prob, cv_label),
-                 "out_of_family": scores(_apply_calibration(cv_prob, ab), cv_label)}
+                 "out_of_family": scores(apply_calibration(cv_prob, *ab), cv_label)}
         if log:
             before, after = extra["out_of_family_raw"], extra["out_of_family"]
             log(f"calibration for new families: scale {ab[0]:.3f}, shift {ab[1]:.3f}; out-of-family F1 "

@@ -52,6 +52,8 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from ..conventions import GRAVITY
+from ..learn.baselines import horizontal_radius
+from ..learn.prior import MIN_RADIUS
 from ..predictor import Predictor, ShapeCode, Trajectory, TrajectoryBatch
 from ..shapes.core import DEFAULT_DENSITY
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
@@ -64,8 +66,6 @@ __all__ = ["Goal", "PlannerConfig", "PlanningError", "Pose2D", "PushPlan", "Push
 INFEASIBLE = 1000.0
 #: Final speed (m/s) that costs as much as one tolerance of position error.
 MOVING_SCALE = 0.1
-#: m, smallest spin lever of the analytic seeds (learn/prior.py's MIN_RADIUS).
-MIN_SPIN_RADIUS = 0.01
 
 
 class PlanningError(ValueError):
@@ -544,8 +544,7 @@ class _Search:
         if self.goal.ignores_yaw:
             return np.array([[speed * d[0], speed * d[1], 0.0, h] for h in hf])
         turn = float(wrap_angle(self.goal.pose.yaw - self.start.yaw))
-        xy = self.body.points[:, :2]
-        radius = max(float(np.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1)))), MIN_SPIN_RADIUS)
+        radius = max(float(horizontal_radius(self.body.points[None])[0]), MIN_RADIUS)  # the prior's spin lever
         want = math.copysign(math.sqrt(2.0 * cfg.friction * GRAVITY / radius * abs(turn)), turn)
         f = np.linspace(-cfg.max_offset_fraction, cfg.max_offset_fraction, offsets)
         ff, hh = np.meshgrid(f, hf)  # (H, F)
