@@ -3,18 +3,27 @@
 Leave-one-category-out: for each category c, a model trained without c (data.exclude_categories=[c]) against a
 model trained on all categories with the same config and budget, both on c's unseen test shapes.
 Friction: a model trained with per-simulation friction ~ U(0.35, 0.65) against one trained at constant friction
-0.5, on the varied-friction test split, with 1, 4 and 6 observed frames fed before the roll-out runs free.
+0.5 (either may be left out), on the varied-friction test split, with 1, 4 and 6 observed frames fed before the
+roll-out runs free. A test split with held-out families (the generator's leave_out) is reported in two groups:
+the held-out families and the trained ones.
 
     .venv/bin/python bench/generalization.py --loo-runs RUNS --loo-data data/combined \
         --friction-data data/speakers_varied --varied RUNS/FRIC_VAR/model_best.pt \
         --constant RUNS/FRIC_CONST/model_best.pt --out runs/generalization
+    # the shipped model (trained at friction 0.5) on the broad world's shapes at friction ~ U(0.35, 0.65):
+    physdyn generate data/friction_varied --config generate_broad --vary-friction --num-sims 4000 --workers 2
+    .venv/bin/python bench/generalization.py --friction-data data/friction_varied \
+        --constant physdyn_ros/models/default.pt --out runs/friction
 
 RUNS holds ALL/model_best.pt and LOO_<category>/model_best.pt (see the model card for how they were trained).
-Prints markdown tables; writes OUT/generalization.json and OUT/generalization.md.
+Prints markdown tables; writes OUT/generalization.json and OUT/generalization.md; the last line is one JSON
+object: {"leave_one_out": {category: {model: figures}}, "friction": {steps_in: {"model @ group": figures}}} with
+figures {pos_median, pos_p90, rot_median, rot_p90, f1, n}.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from physdyn_ros.data.format import write_json
+from physdyn_ros.data.format import Dataset, write_json
 from physdyn_ros.learn.checkpoint import load_model
 from physdyn_ros.learn.evaluate import evaluate_all, ground_truth, model_rollouts
 from physdyn_ros.learn.windows import load_sims
@@ -51,6 +60,22 @@ def row(name: str, shapes: str, m: dict[str, Any]) -> str:
     f1 = m.get("topple", {}).get("f1")
     return (f"| {name} | {shapes} | {m['sequences']} | {f(r['p'], 3)} | {f(r['angle'])} | {f(p['median'])} / "
             f"{f(p['p90'])} | {f(q['median'])} / {f(q['p90'])} | {f(f1, 3)} |")
+
+
+def compact(m: dict[str, Any]) -> dict[str, Any]:
+    p, q = m["final_pos_cm"], m["final_rot_deg"]
+    return {"pos_median": p["median"], "pos_p90": p["p90"], "rot_median": q["median"], "rot_p90": q["p90"],
+            "f1": m.get("topple", {}).get("f1"), "n": m["sequences"]}
+
+
+def friction_groups(data: str) -> list[tuple[str, list[str] | None]]:
+    """[(name, categories)]: the held-out families and the trained ones apart when the dataset has both."""
+    gen = Dataset(data).manifest.get("generator", {})
+    held = list(gen.get("leave_out") or [])
+    if not held:
+        return [("all test shapes", None)]
+    trained = [c for c in gen.get("categories", []) if c not in held]
+    return [("held-out families", held), ("trained families", trained)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,21 +107,26 @@ def main(argv: list[str] | None = None) -> int:
             lines += [row(k, c, v) for k, v in both.items()]
         lines.append("")
     if args.friction_data:
-        if not (args.varied and args.constant):
-            raise SystemExit("error: --friction-data needs --varied and --constant checkpoints")
-        lines += ["## Friction ~ U(0.35, 0.65) on unseen speakers, by observed frames (steps in)", "",
-                  COLUMNS.replace("test shapes", "steps in"), "|---|---|---|---|---|---|---|---|"]
+        models = [(n, c) for n, c in (("constant-friction model", args.constant), ("varied-friction model",
+                                                                                  args.varied)) if c]
+        if not models:
+            raise SystemExit("error: --friction-data needs a --varied or a --constant checkpoint (or both)")
+        lines += ["## Friction ~ U(0.35, 0.65) on unseen shapes, by observed frames (steps in)", "",
+                  COLUMNS.replace("| test shapes |", "| test shapes, steps in |"), "|---|---|---|---|---|---|---|---|"]
         for k in (1, 4, 6):
-            for name, ckpt in (("constant-friction model", args.constant), ("varied-friction model", args.varied)):
-                m = metrics(ckpt, args.friction_data, None, k, args.max_sequences)
-                report.setdefault("friction", {}).setdefault(str(k), {})[name] = m
-                lines.append(row(name, str(k), m))
+            for group, cats in friction_groups(args.friction_data):
+                for name, ckpt in models:
+                    m = metrics(ckpt, args.friction_data, cats, k, args.max_sequences)
+                    report.setdefault("friction", {}).setdefault(str(k), {})[f"{name} @ {group}"] = m
+                    lines.append(row(name, f"{group}, {k}", m))
         lines.append("")
     text = "\n".join(lines)
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "generalization.json", report)
     (args.out / "generalization.md").write_text(text + "\n")
     print(text)
+    print(json.dumps({part: {key: {name: compact(m) for name, m in rows.items()} for key, rows in groups.items()}
+                      for part, groups in report.items()}))
     return 0
 
 
