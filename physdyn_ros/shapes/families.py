@@ -600,6 +600,43 @@ def _gear(rng: np.random.Generator) -> _Built:
                             "thickness": _r(thick), "tooth": _r([base, tip, length])})
 
 
+def _roller(rng: np.random.Generator) -> _Built:
+    # Solids of revolution lying on their side, which roll when pushed across their axis (no other family rests
+    # on a curved side: capsules lie on a flat, prisms and cylinders stand): n-gon cylinders from a pentagon to
+    # nearly round, barrels, capsules with round ends and prolate spheroids, optionally oval in section. Built
+    # along z from n-gon rings with an edge toward +x, then turned to lie along x on that edge's face.
+    kind = str(rng.choice(["cylinder", "barrel", "capsule", "spheroid"], p=[.35, .25, .2, .2]))
+    n = int(rng.choice([5, 6, 7, 8, 10, 12, 16, 24, 40]))
+    r = _logu(rng, 0.012, 0.06)
+    half = 0.5 * min(rng.uniform(2.5, 8.0) * r, 0.36)  # half length of the straight part (cylinder, capsule)
+    if kind == "cylinder":
+        z, rad = np.array([-half, half]), np.array([r, r])
+    elif kind == "barrel":
+        bulge = rng.uniform(0.1, 0.4)
+        z = np.linspace(-half, half, 9)
+        rad = r * (1.0 + bulge * (1.0 - (z / half) ** 2))
+    elif kind == "capsule":
+        a = np.linspace(0.0, np.pi / 2, 6)[1:]  # hemispherical ends as 5 rings each
+        cap = half + r * np.sin(a)
+        z = np.concatenate([-cap[::-1], [-half, half], cap])
+        rad = np.concatenate([r * np.cos(a)[::-1], [r, r], r * np.cos(a)])
+    else:
+        half = min(rng.uniform(1.3, 3.0) * r, 0.18)  # semi-axis along the roll axis
+        t = np.linspace(-1.0, 1.0, 11)[1:-1]
+        z, rad = half * t, r * np.sqrt(1.0 - t * t)
+        z, rad = np.concatenate([[-half], z, [half]]), np.concatenate([[0.0], rad, [0.0]])
+    ring = polygon(n, 1.0, flat_phase(n, 0.0))  # an edge toward +x: after rotate_to_axis the bottom face
+    pts = rotate_to_axis(np.vstack([np.column_stack([ring * q, np.full(n, h)]) for q, h in zip(rad, z)]), "x")
+    squash = rng.uniform(0.7, 1.0) if rng.random() < 0.3 else 1.0  # oval section: rolls unevenly
+    pts[:, 2] *= squash
+    cut = 0.0
+    if kind != "cylinder":  # curved along the axis too: a thin flat to rest on instead of one line of contact
+        cut = rng.uniform(0.02, 0.08)
+        pts[:, 2] = np.maximum(pts[:, 2], pts[:, 2].min() + cut * r * squash)
+    return _convex(pts, {"kind": kind, "sides": n, "radius": _r(r), "length": _r(float(np.ptp(z))),
+                         "squash": _r(squash), "cut_bottom": _r(cut)})
+
+
 # -------------------------------------------------------------------------------------------------- registry
 _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
     f.name: (b, f) for b, f in [
@@ -631,6 +668,8 @@ _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
         (_legged, Family("legged", "compositions", False,
                          "tables, stools, benches, pedestals: a top on 3-4 legs, panels or a column")),
         (_gear, Family("gear", "compositions", False, "flat gears (trapezoid teeth) and stars (spikes)")),
+        (_roller, Family("roller", "rounded", True,
+                         "lying on their side: 5-40-gon cylinders, barrels, round-ended capsules, spheroids")),
     ]
 }
 
