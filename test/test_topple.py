@@ -360,3 +360,23 @@ def test_a_planner_roll_out_ends_at_the_whole_push_probability(fitted):
     assert np.abs(short.positions[calm] - full.positions[calm, :13]).max() < 1e-9
     assert np.allclose(short.topple_probability[calm], full.topple_probability[calm], atol=1e-9)
     assert np.all(short.topple_prob[calm, :13].max(axis=1) >= full.topple_prob[calm, :13].max(axis=1) - 1e-12)
+
+
+def test_a_model_with_a_fitted_head_can_be_fine_tuned(fitted, tmp_path, capsys):
+    """`physdyn train --init` the shipped kind of checkpoint (a fitted head, its topple_fit record): it failed
+    with "unknown config sections ['topple_fit']". The fine-tune starts from the dynamics weights and drops the
+    head, whose inputs the fine-tune changes (refit it with fit-topple)."""
+    from physdyn_ros.cli import main
+    from physdyn_ros.learn.checkpoint import load_checkpoint, load_model
+
+    out = tmp_path / "ft"
+    code = main(["train", "--init", str(fitted[1]), "--data", str(tiny_dataset()), "--out", str(out),
+                 "--max-epochs", "1", "--set", "train.lr=1e-9", "--set", "train.lr_min=1e-9", "--no-progress"])
+    assert code == 0, capsys.readouterr().err[-2000:]
+    model, ckpt = load_model(out / "model_best.pt")
+    assert model.topple is None and "topple_fit" not in ckpt["config"]
+    before = load_checkpoint(fitted[1])["model"]
+    after = ckpt["model"]
+    assert not any(k.startswith("topple.") for k in after)
+    for k, w in after.items():  # the dynamics weights are the init's (a negligible learning rate)
+        assert torch.allclose(w.float(), before[k].float(), atol=1e-5), k

@@ -220,6 +220,18 @@ def test_fine_tune_starts_from_the_init_checkpoint(overfit_run, tmp_path):
         train(cfg, tiny_dataset(), tmp_path / "ft3", resume=str(init), init=str(init), progress=False)
 
 
+def test_set_reads_numbers_as_numbers():
+    """--set train.lr=1e-4 reached torch's Adam as the string '1e-4' (YAML 1.1 wants a dot in a float) and
+    failed there with a TypeError."""
+    from physdyn_ros.learn.train import apply_overrides
+
+    raw: dict = {}
+    apply_overrides(raw, ["train.lr=1e-4", "train.epochs=3", "model.cell=lstm", "data.categories=[box, mug]"])
+    assert raw == {"train": {"lr": 1e-4, "epochs": 3}, "model": {"cell": "lstm"},
+                   "data": {"categories": ["box", "mug"]}}
+    assert isinstance(raw["train"]["lr"], float) and isinstance(raw["train"]["epochs"], int)
+
+
 def test_a_fine_tune_may_swap_the_physics_prior_and_nothing_else():
     """The prior has no weights: a fine-tune may move a sliding-prior model to the coupled prior (session 8) or
     another friction; a checkpoint written before newer config keys existed compares with their defaults."""

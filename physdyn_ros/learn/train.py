@@ -129,7 +129,13 @@ def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> None:
         raw.setdefault(section, {})
         if raw[section] is None:
             raw[section] = {}
-        raw[section][name] = yaml.safe_load(value)
+        parsed = yaml.safe_load(value)
+        if isinstance(parsed, str):  # YAML 1.1 reads an exponent without a dot (lr=1e-4) as a string
+            try:
+                parsed = float(parsed)
+            except ValueError:
+                pass
+        raw[section][name] = parsed
 
 
 def lr_factor(step: int, cfg: dict[str, Any]) -> float:
@@ -339,13 +345,16 @@ def _device(device: str, d: Dist) -> torch.device:
 
 def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     """Two model configs whose weights are interchangeable: equal but for the physics prior (no weights of its
-    own), which a fine-tune may swap between its two kinds or give another friction. Keys a checkpoint written
-    before they existed lacks count as their defaults."""
+    own), which a fine-tune may swap between its two kinds or give another friction, and the whole-push topple
+    head (not trained here). Keys a checkpoint written before they existed lacks count as their defaults."""
     from dataclasses import asdict
 
     from .model import ModelConfig
 
     a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
+    head = ("topple_head", "topple_hidden", "topple_members")  # fitted afterwards on the frozen features
+    a = {k: v for k, v in a.items() if k not in head}
+    b = {k: v for k, v in b.items() if k not in head}
     priors = {"sliding", "coupled"}
     if a.get("prior", "none") in priors and b.get("prior", "none") in priors:
         drop = ("prior", "prior_friction")
@@ -422,8 +431,11 @@ class _Run:
         self.optimizer = torch.optim.Adam(self.core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda step: lr_factor(step, tcfg))
         self.prog: dict[str, Any] = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
-        if base is not None:
-            self.core.load_state_dict(base["model"])
+        if base is not None:  # the dynamics weights; a topple head is refit on the new features (fit-topple)
+            state = {k: v for k, v in base["model"].items() if not k.startswith("topple.")}
+            missing = self.core.load_state_dict(state, strict=False).missing_keys
+            if [k for k in missing if not k.startswith("topple.")]:
+                raise CheckpointError(f"the --init weights lack {missing[:3]}")
         if ckpt is not None:
             self.core.load_state_dict(ckpt["model"])
             self.optimizer.load_state_dict(ckpt["optimizer"])
@@ -614,6 +626,10 @@ def run(args: argparse.Namespace) -> int:
         if not Path(args.init).is_file():
             raise FileNotFoundError(f"--init checkpoint {args.init} does not exist")
         base = copy.deepcopy(load_checkpoint(args.init)["config"])
+        # a fine-tune changes the shape features a whole-push topple head reads: it is not carried over (refit it
+        # with physdyn fit-topple on the result), nor the record of its fit
+        base.pop("topple_fit", None)
+        base["model"] = {**base["model"], "topple_head": False}
         apply_overrides(base, args.set)
         cfg = resolve_config(base)
     else:
