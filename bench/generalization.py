@@ -70,11 +70,10 @@ def compact(m: dict[str, Any]) -> dict[str, Any]:
 
 def friction_groups(data: str) -> list[tuple[str, list[str] | None]]:
     """[(name, categories)]: the held-out families and the trained ones apart when the dataset has both."""
-    gen = Dataset(data).manifest.get("generator", {})
-    held = list(gen.get("leave_out") or [])
+    groups = Dataset(data).manifest.get("test_groups") or {}
+    held, trained = list(groups.get("held_out") or []), list(groups.get("in_category") or [])
     if not held:
         return [("all test shapes", None)]
-    trained = [c for c in gen.get("categories", []) if c not in held]
     return [("held-out families", held), ("trained families", trained)]
 
 

@@ -249,6 +249,8 @@ def test_broad_config_resolves():
         assert set(p["leave_out"]) == set(HELD_OUT_FAMILIES) and set(p["leave_out"]) <= set(FAMILIES)
         assert p["sim"]["collision"] == "parts" and p["push"]["size_limits"] == [0.015, 0.45]
         assert gen.test_groups(p)["held_out"] == [c for c in ALL_CATEGORIES if c in HELD_OUT_FAMILIES]
+    one, two = params(config="generate_broad"), params(config="generate_broad2")
+    assert {k: v for k, v in one.items() if k != "categories"} == {k: v for k, v in two.items() if k != "categories"}
 
 
 def test_generate_new_families_with_held_out_family(tmp_path, capsys):

@@ -230,6 +230,8 @@ def test_set_reads_numbers_as_numbers():
     assert raw == {"train": {"lr": 1e-4, "epochs": 3}, "model": {"cell": "lstm"},
                    "data": {"categories": ["box", "mug"]}}
     assert isinstance(raw["train"]["lr"], float) and isinstance(raw["train"]["epochs"], int)
+    apply_overrides(raw, ["model.name=nan", "model.name2=1_000", "train.lr=-2.5E-3"])
+    assert raw["model"]["name"] == "nan" and raw["model"]["name2"] == 1000 and raw["train"]["lr"] == -2.5e-3
 
 
 def test_a_fine_tune_may_swap_the_physics_prior_and_nothing_else():

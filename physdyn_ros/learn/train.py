@@ -21,6 +21,7 @@ import copy
 import json
 import math
 import os
+import re
 import signal
 import sys
 import time
@@ -120,6 +121,9 @@ def load_config(path: str | Path, overrides: Optional[list[str]] = None) -> dict
     return resolve_config(raw)
 
 
+_EXPONENT = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)[eE][+-]?\d+")
+
+
 def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> None:
     for item in overrides:
         key, sep, value = item.partition("=")
@@ -130,11 +134,8 @@ def apply_overrides(raw: dict[str, Any], overrides: list[str]) -> None:
         if raw[section] is None:
             raw[section] = {}
         parsed = yaml.safe_load(value)
-        if isinstance(parsed, str):  # YAML 1.1 reads an exponent without a dot (lr=1e-4) as a string
-            try:
-                parsed = float(parsed)
-            except ValueError:
-                pass
+        if isinstance(parsed, str) and _EXPONENT.fullmatch(parsed.strip()):
+            parsed = float(parsed)  # YAML 1.1 reads an exponent without a dot (lr=1e-4) as a string
         raw[section][name] = parsed
 
 
@@ -433,9 +434,10 @@ class _Run:
         self.prog: dict[str, Any] = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
         if base is not None:  # the dynamics weights; a topple head is refit on the new features (fit-topple)
             state = {k: v for k, v in base["model"].items() if not k.startswith("topple.")}
-            missing = self.core.load_state_dict(state, strict=False).missing_keys
-            if [k for k in missing if not k.startswith("topple.")]:
-                raise CheckpointError(f"the --init weights lack {missing[:3]}")
+            res = self.core.load_state_dict(state, strict=False)
+            bad = [k for k in res.missing_keys if not k.startswith("topple.")] + list(res.unexpected_keys)
+            if bad:
+                raise CheckpointError(f"the --init checkpoint's weights do not fit the model: {bad[:3]}")
         if ckpt is not None:
             self.core.load_state_dict(ckpt["model"])
             self.optimizer.load_state_dict(ckpt["optimizer"])

@@ -633,8 +633,12 @@ def _roller(rng: np.random.Generator) -> _Built:
     if kind != "cylinder":  # curved along the axis too: a thin flat to rest on instead of one line of contact
         cut = rng.uniform(0.02, 0.08)
         pts[:, 2] = np.maximum(pts[:, 2], pts[:, 2].min() + cut * r * squash)
-    return _convex(pts, {"kind": kind, "sides": n, "radius": _r(r), "length": _r(float(np.ptp(z))),
-                         "squash": _r(squash), "cut_bottom": _r(cut)})
+    length = float(np.ptp(pts[:, 0]))
+    if length < SIZE_RANGE[0]:  # a short thin roller: stretched along its axis to the family's smallest size
+        pts[:, 0] *= 1.001 * SIZE_RANGE[0] / length
+    built = _convex(pts, {"kind": kind, "sides": n, "radius": _r(r), "length": _r(float(np.ptp(pts[:, 0]))),
+                          "squash": _r(squash), "cut_bottom": _r(cut)})
+    return _fit(built)  # a long capsule: scaled down to the largest size
 
 
 # -------------------------------------------------------------------------------------------------- registry
