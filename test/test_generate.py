@@ -241,16 +241,17 @@ def test_broad_config_resolves():
     without the roller family (the world the shipped model was trained on)."""
     from physdyn_ros.shapes import ALL_CATEGORIES, FAMILIES, HELD_OUT_FAMILIES
 
+    configs = {name: params(config=name) for name in ("generate_broad", "generate_broad2")}
     for name, categories in (("generate_broad", [c for c in ALL_CATEGORIES if c != "roller"]),  # the shipped
                              ("generate_broad2", list(ALL_CATEGORIES))):                         # model's world
-        p = params(config=name)
+        p = configs[name]
         assert p["categories"] == categories, name
         assert len(p["categories"]) * p["shapes_per_category"] >= 3000
         assert set(p["leave_out"]) == set(HELD_OUT_FAMILIES) and set(p["leave_out"]) <= set(FAMILIES)
         assert p["sim"]["collision"] == "parts" and p["push"]["size_limits"] == [0.015, 0.45]
         assert gen.test_groups(p)["held_out"] == [c for c in ALL_CATEGORIES if c in HELD_OUT_FAMILIES]
-    one, two = params(config="generate_broad"), params(config="generate_broad2")
-    assert {k: v for k, v in one.items() if k != "categories"} == {k: v for k, v in two.items() if k != "categories"}
+    one, two = ({k: v for k, v in p.items() if k != "categories"} for p in configs.values())
+    assert one == two
 
 
 def test_generate_new_families_with_held_out_family(tmp_path, capsys):

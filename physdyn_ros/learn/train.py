@@ -353,15 +353,10 @@ def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     from .model import ModelConfig
 
     a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
-    head = ("topple_head", "topple_hidden", "topple_members")  # fitted afterwards on the frozen features
-    a = {k: v for k, v in a.items() if k not in head}
-    b = {k: v for k, v in b.items() if k not in head}
-    priors = {"sliding", "coupled"}
-    if a.get("prior", "none") in priors and b.get("prior", "none") in priors:
-        drop = ("prior", "prior_friction")
-        a = {k: v for k, v in a.items() if k not in drop}
-        b = {k: v for k, v in b.items() if k not in drop}
-    return a == b
+    drop = {"topple_head", "topple_hidden", "topple_members"}  # the head is fitted afterwards on frozen features
+    if {a["prior"], b["prior"]} <= {"sliding", "coupled"}:
+        drop |= {"prior", "prior_friction"}
+    return {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
 
 
 def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],

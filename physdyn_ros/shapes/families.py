@@ -622,9 +622,8 @@ def _roller(rng: np.random.Generator) -> _Built:
         rad = np.concatenate([r * np.cos(a)[::-1], [r, r], r * np.cos(a)])
     else:
         half = min(rng.uniform(1.3, 3.0) * r, 0.18)  # semi-axis along the roll axis
-        t = np.linspace(-1.0, 1.0, 11)[1:-1]
+        t = np.linspace(-1.0, 1.0, 11)  # the tips are rings of radius 0
         z, rad = half * t, r * np.sqrt(1.0 - t * t)
-        z, rad = np.concatenate([[-half], z, [half]]), np.concatenate([[0.0], rad, [0.0]])
     ring = polygon(n, 1.0, flat_phase(n, 0.0))  # an edge toward +x: after rotate_to_axis the bottom face
     pts = rotate_to_axis(np.vstack([np.column_stack([ring * q, np.full(n, h)]) for q, h in zip(rad, z)]), "x")
     squash = rng.uniform(0.7, 1.0) if rng.random() < 0.3 else 1.0  # oval section: rolls unevenly
