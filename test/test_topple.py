@@ -15,8 +15,8 @@ from physdyn_ros import geometry as geo
 from physdyn_ros.conventions import GRAVITY
 from physdyn_ros.learn import rules
 from physdyn_ros.predictor import compose_rotations
-from physdyn_ros.learn.support import DESCRIPTOR_DIM, PUSH_DIM, SUPPORT_DIRECTIONS, push_quantities, \
-    support_descriptors
+from physdyn_ros.learn.support import DESCRIPTOR_DIM, DESCRIPTOR_DIMS, PUSH_DIM, PUSH_DIMS, SUPPORT_DIRECTIONS, \
+    push_quantities, support_descriptors, tilt_barriers
 
 
 def _surface(mesh: trimesh.Trimesh, n: int = 3000) -> np.ndarray:
@@ -67,15 +67,68 @@ def test_push_quantities_follow_the_tipping_barrier():
     desc = np.zeros((1, DESCRIPTOR_DIM))
     desc[0, 0] = 0.1  # centre of mass 10 cm up
     desc[0, 3:3 + SUPPORT_DIRECTIONS] = 0.05  # a round base of 5 cm radius
-    desc[0, 3 + SUPPORT_DIRECTIONS:] = 0.001
+    desc[0, 3 + SUPPORT_DIRECTIONS:6 + SUPPORT_DIRECTIONS] = 0.001
+    desc[0, 6 + SUPPORT_DIRECTIONS:] = np.where(np.arange(SUPPORT_DIRECTIONS) == 0, 0.02, 0.3)  # low barrier at +x
     q = push_quantities(desc, np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)))[0]
     assert q.shape == (PUSH_DIM,)
     speed, front, barrier, kinetic = q[6], q[9], q[13], q[14]
     assert speed == pytest.approx(1.0) and front == pytest.approx(0.05)
     assert barrier == pytest.approx(GRAVITY * (math.hypot(0.1, 0.05) - 0.1))
     assert kinetic == pytest.approx(0.5)
+    tilt_ahead, tilt_min, log_ahead = q[18], q[19], q[20]
+    assert tilt_ahead == pytest.approx(0.02) and tilt_min == pytest.approx(0.02)
+    assert log_ahead == pytest.approx(math.log((0.5 + 1e-6) / (0.02 + 1e-6)))
+    sideways = push_quantities(desc, np.array([[0.0, 1.0, 0.0]]), np.zeros((1, 3)))[0]
+    assert sideways[18] == pytest.approx(0.3)  # pushed along y: the barrier that way
     with pytest.raises(ValueError, match="one centre of mass each"):
         support_descriptors(np.zeros((2, 10, 3)), np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="descriptors must be"):
+        push_quantities(desc[:, :DESCRIPTOR_DIMS[1]], np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
+    """A cube of side 2a tilted 45 deg about a base edge raises its centre of mass from a to a sqrt(2): barrier
+    g a (sqrt(2) - 1) toward each face. A round cylinder lying along x rolls across its axis with no barrier (its
+    band of lowest points still reaches 1.5 cm that way), but tips over an end along its axis."""
+    a = 0.05
+    cube = trimesh.creation.box(extents=(2 * a, 2 * a, 2 * a))
+    pts = np.concatenate([np.asarray(cube.sample(2000)), np.asarray(cube.vertices)])  # centred on the cube
+    barrier = tilt_barriers(pts, np.zeros(3))
+    assert barrier.shape == (SUPPORT_DIRECTIONS,)
+    for k in (0, 4, 8, 12):  # +x, +y, -x, -y
+        assert barrier[k] == pytest.approx(GRAVITY * a * (math.sqrt(2) - 1), rel=1e-6)
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.2, sections=64)
+    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))
+    desc = support_descriptors(_surface(cyl)[None], np.zeros((1, 3)))[0]
+    tilt = desc[6 + SUPPORT_DIRECTIONS:]
+    across, along = tilt[4], tilt[0]
+    assert across < 0.01 * along and across < GRAVITY * 0.001  # under 1 mm of rise rolling 45 deg
+    assert along == pytest.approx(GRAVITY * (0.04 * math.cos(math.pi / 4) + 0.1 * math.sin(math.pi / 4) - 0.04),
+                                  rel=0.05)
+    assert _reach(desc, 90) > 0.01  # what the support polygon alone says: a 1.5 cm wide strip
+
+
+def test_a_version_1_head_reads_the_leading_columns():
+    """Heads fitted before the tilt barriers (inputs version 1, checkpoints without model.topple_inputs) see
+    the same inputs as then: the descriptors and push quantities hold their columns first."""
+    from physdyn_ros.learn.model import ModelConfig
+    from physdyn_ros.learn.topple import ToppleHead
+
+    assert ModelConfig().topple_inputs == 1
+    with pytest.raises(ValueError, match="topple_inputs must be one of"):
+        ModelConfig(topple_inputs=3)
+    old, new = ToppleHead(8, 16, 2, inputs=1), ToppleHead(8, 16, 2, inputs=2)
+    assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIM
+    rng = np.random.default_rng(0)
+    feature = rng.normal(size=(3, 8))
+    box = _surface(trimesh.creation.box(extents=(0.1, 0.2, 0.3)))
+    desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)))
+    vel, angvel = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    for head in (old, new):
+        prob, _ = head.assess(feature, desc, vel, angvel)
+        push = torch.from_numpy(push_quantities(desc, vel, angvel))
+        want = head(torch.from_numpy(feature).float(), torch.from_numpy(desc).float(), push.float())
+        assert prob == pytest.approx(want.detach().double().numpy(), abs=1e-5)
 
 
 def test_whole_push_probability_is_the_heads_with_the_step_network_timing():
@@ -113,7 +166,8 @@ def fitted(tmp_path_factory):
     src = random_checkpoint(tmp / "src.pt")
     out = tmp / "fitted.pt"
     args = argparse.Namespace(checkpoint=str(src), data=str(tiny_dataset()), out=str(out), max_train=100,
-                              partial=0.5, epochs=3, members=2, seed=0, threads=1, family_folds=3)
+                              partial=0.5, epochs=3, members=2, seed=0, threads=1, family_folds=3,
+                              feature_dropout=0.5)
     assert topple_fit.run(args) == 0
     return src, out
 
@@ -189,6 +243,8 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     src, out = fitted
     model, ckpt = load_model(out)
     assert model.topple is not None and len(model.topple.members) == 2
+    assert model.topple.inputs == 2 and ckpt["config"]["model"]["topple_inputs"] == 2  # the tilt barriers
+    assert ckpt["config"]["topple_fit"]["feature_dropout"] == 0.5
     assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
     assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
     plain, headed = Predictor.load(src), Predictor.load(out)

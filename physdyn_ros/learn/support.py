@@ -3,9 +3,15 @@ the whole-push topple head, learn/topple.py).
 
 Computed from the same cloud the encoder sees (frame C, z up, metres): the height of the centre of mass over
 the lowest point, how far the support polygon (the convex hull of the lowest points) reaches from the centre of
-mass in each direction, and the cloud's second moments. Per push: the reach ahead of the push (friction at the
-base tips a sliding object forward over that edge), the potential barrier of tipping over it, the kinetic
-energy. The per-object part runs once per object (one 2-D hull); the per-push part is vectorised.
+mass in each direction, the cloud's second moments, and, per direction, the potential barrier of tilting the
+object 45 deg that way on its own surface. Per push: the reach ahead of the push (friction at the base tips a
+sliding object forward over that edge), the potential barrier of tipping over it, the kinetic energy, the tilt
+barrier ahead. The per-object part runs once per object (one 2-D hull); the per-push part is vectorised.
+
+Inputs version 2 (TILT) added the tilt barriers: the support polygon of a round base (a lying can, a dumbbell on
+its discs, a ball) is the band of its lowest points, which looks as wide as a flat face, but such an object
+rolls with no barrier at all; the centre of mass rising as the surface rolls on the table tells them apart. The
+columns are appended, so a version-1 head reads the first DESCRIPTOR_DIMS[1] / PUSH_DIMS[1] columns unchanged.
 """
 from __future__ import annotations
 
@@ -14,16 +20,24 @@ import math
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from ..conventions import GRAVITY
+from ..conventions import GRAVITY, TOPPLE_ANGLE
 
 #: Directions (in frame C, evenly spaced from +x) in which the support polygon's reach from the centre of mass
 #: is measured.
 SUPPORT_DIRECTIONS = 16
-#: Per-object descriptors: centre-of-mass height over the lowest point, height, area of the support polygon,
-#: the polygon's reach in each direction, and the cloud's second moments about the centre of mass (x, y, z).
-DESCRIPTOR_DIM = 3 + SUPPORT_DIRECTIONS + 3
-#: Per-push quantities derived from the descriptors and the initial twist (push_quantities).
-PUSH_DIM = 6 + 12
+#: Tilt angles (rad, 0 to the topple angle) at which the centre of mass height is measured for the tilt barrier.
+TILT_ANGLES = np.linspace(0.0, TOPPLE_ANGLE, 10)  # conventions: rad
+#: Inputs versions of the topple head: 1 (session 8) and 2 (+ tilt barriers); the current one.
+INPUTS_VERSIONS = (1, 2)
+INPUTS_VERSION = 2
+#: Per-object descriptors, by inputs version: centre-of-mass height over the lowest point, height, area of the
+#: support polygon, the polygon's reach in each direction, the cloud's second moments about the centre of mass
+#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers).
+DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, 2: 3 + 2 * SUPPORT_DIRECTIONS + 3}
+#: Per-push quantities derived from the descriptors and the initial twist (push_quantities), by inputs version.
+PUSH_DIMS = {1: 6 + 12, 2: 6 + 12 + 4}
+DESCRIPTOR_DIM = DESCRIPTOR_DIMS[INPUTS_VERSION]
+PUSH_DIM = PUSH_DIMS[INPUTS_VERSION]
 #: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.
 BASE_BAND_M = 0.003
 BASE_BAND_REL = 0.03
@@ -48,6 +62,31 @@ def _support_reach(base: np.ndarray, centre: np.ndarray, dirs: np.ndarray) -> tu
     return t.min(axis=0), float(hull.volume)
 
 
+def _directions() -> np.ndarray:
+    angles = np.arange(SUPPORT_DIRECTIONS) * (2.0 * math.pi / SUPPORT_DIRECTIONS)
+    return np.stack([np.cos(angles), np.sin(angles)], axis=1)
+
+
+def _tilt_down() -> np.ndarray:
+    """(3, K * A) the table's downward normal in the object frame when the object is tilted by each of
+    TILT_ANGLES toward each support direction (the side that goes down)."""
+    dirs = _directions()
+    s, c = np.sin(TILT_ANGLES), np.cos(TILT_ANGLES)
+    return np.stack([np.outer(dirs[:, 0], s).ravel(), np.outer(dirs[:, 1], s).ravel(), -np.tile(c, len(dirs))])
+
+
+_TILT_DOWN = _tilt_down()
+
+
+def tilt_barriers(points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(K,) J/kg: the rise of the centre of mass `com` (3,) when the object of surface points `points` (N, 3)
+    (frame C, z up) tilts up to TOPPLE_ANGLE toward each support direction resting on its own convex surface:
+    g times the largest height over the table along the way, less the height at rest. About the reach-and-height
+    barrier for a box, zero for an object that rolls (a round base), whatever its band of lowest points."""
+    height = ((points - com) @ _TILT_DOWN).max(axis=0).reshape(SUPPORT_DIRECTIONS, len(TILT_ANGLES))
+    return GRAVITY * (height.max(axis=1) - height[:, 0])
+
+
 def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
     """(B, DESCRIPTOR_DIM) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of mass
     com (B, 3) in the same frame."""
@@ -55,8 +94,8 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
     com = np.asarray(com, dtype=np.float64).reshape(-1, 3)
     if cloud.ndim != 3 or cloud.shape[0] != com.shape[0] or cloud.shape[2] != 3:
         raise ValueError(f"clouds must be (B, N, 3) with one centre of mass each, got {cloud.shape}, {com.shape}")
-    angles = np.arange(SUPPORT_DIRECTIONS) * (2.0 * math.pi / SUPPORT_DIRECTIONS)
-    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    dirs = _directions()
+    moments = 3 + SUPPORT_DIRECTIONS
     out = np.empty((len(cloud), DESCRIPTOR_DIM))
     for i, (pts, c) in enumerate(zip(cloud, com)):
         z = pts[:, 2]
@@ -66,7 +105,8 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
         reach, area = _support_reach(base, c[:2], dirs)
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
-        out[i, 3 + SUPPORT_DIRECTIONS:] = np.mean((pts - c) ** 2, axis=0)
+        out[i, moments:moments + 3] = np.mean((pts - c) ** 2, axis=0)
+        out[i, moments + 3:] = tilt_barriers(pts, c)
     return out
 
 
@@ -88,13 +128,18 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     """(B, PUSH_DIM) per push: the initial twist in C (6) and what decides tipping: speed, tipping and yaw
     rates, vertical speed, the support's reach ahead of / behind / beside the push and its minimum, the
     potential barrier of tipping over the front edge (per unit mass), the kinetic energy (per unit mass), their
-    ratio, the friction lever h / reach ahead, and the rate at which sliding tips the object about that edge."""
+    ratio, the friction lever h / reach ahead, and the rate at which sliding tips the object about that edge;
+    version 2: the tilt barrier ahead of the push and its minimum over directions (J/kg), and the log ratio of
+    the kinetic energy to each. desc: (B, DESCRIPTOR_DIM) of support_descriptors."""
     desc = np.asarray(desc, dtype=np.float64)
+    if desc.ndim != 2 or desc.shape[1] != DESCRIPTOR_DIM:
+        raise ValueError(f"descriptors must be (B, {DESCRIPTOR_DIM}) (support_descriptors), got {desc.shape}")
     vel = np.asarray(vel, dtype=np.float64).reshape(-1, 3)
     angvel = np.asarray(angvel, dtype=np.float64).reshape(-1, 3)
     h = desc[:, 0]
     reach = desc[:, 3:3 + SUPPORT_DIRECTIONS]
-    gyration2 = desc[:, 3 + SUPPORT_DIRECTIONS:].sum(axis=1)
+    gyration2 = desc[:, 3 + SUPPORT_DIRECTIONS:6 + SUPPORT_DIRECTIONS].sum(axis=1)
+    tilt = desc[:, 6 + SUPPORT_DIRECTIONS:]
     speed = np.linalg.norm(vel[:, :2], axis=1)
     heading = np.arctan2(vel[:, 1], vel[:, 0])
     ahead, back, left, right = _reach_at(reach, heading[:, None] + _QUARTERS).T
@@ -105,6 +150,8 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     kinetic = 0.5 * speed ** 2 + 0.5 * gyration2 * tip_rate ** 2
     ratio = np.log((kinetic + 1e-6) / (barrier + 1e-6))
     slide_tip = speed * h / (h * h + lever * lever + 1e-6)
+    tilt_ahead, tilt_min = _reach_at(tilt, heading[:, None])[:, 0], tilt.min(axis=1)
     return np.concatenate([vel, angvel, np.stack([
         speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
-        h / (lever + 1e-3), slide_tip], axis=1)], axis=1)
+        h / (lever + 1e-3), slide_tip, tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
+        np.log((kinetic + 1e-6) / (tilt_min + 1e-6))], axis=1)], axis=1)

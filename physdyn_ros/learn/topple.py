@@ -23,7 +23,7 @@ import torch
 from scipy.special import expit
 from torch import Tensor, nn
 
-from .support import DESCRIPTOR_DIM, PUSH_DIM, push_quantities
+from .support import DESCRIPTOR_DIMS, INPUTS_VERSIONS, PUSH_DIMS, push_quantities
 
 #: Novelty 1 is the training inputs' distance at this quantile (issue 11: flag inputs far from the training data).
 NOVELTY_QUANTILE = 0.995
@@ -55,10 +55,16 @@ class ToppleHead(nn.Module):
     range_radius: Tensor
     calibration: Tensor
 
-    def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5) -> None:
+    def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5, inputs: int = 1) -> None:
         super().__init__()
+        if inputs not in INPUTS_VERSIONS:
+            raise ValueError(f"topple head inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
         self.feature_dim = int(feature_dim)
-        self.in_dim = self.feature_dim + DESCRIPTOR_DIM + PUSH_DIM
+        self.inputs = int(inputs)
+        # the descriptors and push quantities of support.py hold every version's columns, newest last: a head of
+        # an older version reads its leading columns
+        self.desc_dim, self.push_dim = DESCRIPTOR_DIMS[self.inputs], PUSH_DIMS[self.inputs]
+        self.in_dim = self.feature_dim + self.desc_dim + self.push_dim
         self.members = nn.ModuleList([
             nn.Sequential(nn.Linear(self.in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
                           nn.Linear(hidden, 1)) for _ in range(int(members))])
@@ -81,7 +87,7 @@ class ToppleHead(nn.Module):
         self._np_key: Optional[tuple] = None
 
     def raw_inputs(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
-        return torch.cat([feature, _squash(desc), _squash(push)], dim=-1)
+        return torch.cat([feature, _squash(desc[:, :self.desc_dim]), _squash(push[:, :self.push_dim])], dim=-1)
 
     def member_logits(self, x: Tensor) -> Tensor:
         """(members, B) logits of raw inputs x (B, in_dim), standardised here."""
@@ -98,7 +104,7 @@ class ToppleHead(nn.Module):
         lo, hi = x.min(dim=0).values, x.max(dim=0).values
         # a push without tilting spin, or an object at rest, is ordinary even where every training push had
         # some: the per-push quantities' ranges reach zero
-        push = slice(self.in_dim - PUSH_DIM, self.in_dim)
+        push = slice(self.in_dim - self.push_dim, self.in_dim)
         lo[push], hi[push] = lo[push].clamp_max(0.0), hi[push].clamp_min(0.0)
         self.range_centre.copy_(0.5 * (lo + hi))
         self.range_radius.copy_((0.5 * RANGE_MARGIN * (hi - lo)).clamp_min(1e-6))
@@ -164,7 +170,7 @@ class ToppleHead(nn.Module):
         forward pass and novelty above, in numpy (float64)."""
         w = self._numpy()
         push = push_quantities(desc, vel, angvel)
-        squashed = np.concatenate([desc, push], axis=1)
+        squashed = np.concatenate([np.asarray(desc)[:, :self.desc_dim], push[:, :self.push_dim]], axis=1)
         squashed = np.sign(squashed) * np.log1p(10.0 * np.abs(squashed))
         x = np.concatenate([np.asarray(feature, dtype=np.float64), squashed], axis=1)
         z = (x - w["mean"]) / w["std"]

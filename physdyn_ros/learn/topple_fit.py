@@ -17,7 +17,7 @@ import torch
 
 from .evaluate import _fmt, calibration, topple_scores
 from .model import DynamicsModel
-from .support import push_quantities, support_descriptors
+from .support import INPUTS_VERSION, push_quantities, support_descriptors
 from .topple import ToppleHead, apply_calibration
 from .windows import SimArrays, sequences
 
@@ -60,9 +60,11 @@ def _raw(head: ToppleHead, d: dict[str, np.ndarray]) -> torch.Tensor:
 
 def _train_members(head: ToppleHead, x: torch.Tensor, y: torch.Tensor, xv: torch.Tensor, yv: torch.Tensor, *,
                    epochs: int, batch_size: int, lr: float, weight_decay: float, seed: int,
-                   log: Optional[Callable[[str], None]]) -> None:
+                   log: Optional[Callable[[str], None]], feature_dropout: float = 0.0) -> None:
     """Standardisation and novelty from x, then each member from its own seed, keeping its epoch of lowest
-    validation loss on (xv, yv)."""
+    validation loss on (xv, yv). feature_dropout: the chance that a training push's whole learned shape feature
+    is replaced by its mean (0 after standardisation), so that the head also decides from the physical
+    descriptors alone: they carry over to shapes the encoder has never seen, the feature less so."""
     head.mean.copy_(x.mean(0))
     head.std.copy_(x.std(0).clamp_min(1e-6))
     head.set_novelty(x)
@@ -81,7 +83,11 @@ def _train_members(head: ToppleHead, x: torch.Tensor, y: torch.Tensor, xv: torch
             perm = torch.randperm(len(zx), generator=gen)
             for i in range(0, len(zx), batch_size):
                 b = perm[i:i + batch_size]
-                loss = loss_fn(member(zx[b])[:, 0], y[b])
+                zb = zx[b]
+                if feature_dropout > 0.0:
+                    keep = (torch.rand(len(b), 1, generator=gen) >= feature_dropout).to(zb.dtype)
+                    zb = torch.cat([zb[:, :head.feature_dim] * keep, zb[:, head.feature_dim:]], dim=1)
+                loss = loss_fn(member(zb)[:, 0], y[b])
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -157,7 +163,7 @@ def fit_calibration(prob: np.ndarray, label: np.ndarray, iterations: int = 50) -
 def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
                     partial: float = 1.0 / 3.0, noise: float = 0.002, epochs: int = 120, batch_size: int = 512,
                     lr: float = 3e-3, weight_decay: float = 1e-3, seed: int = 0, family_folds: int = 0,
-                    log: Optional[Callable[[str], None]] = print) -> dict[str, Any]:
+                    feature_dropout: float = 0.0, log: Optional[Callable[[str], None]] = print) -> dict[str, Any]:
     """Fit model.topple (a ToppleHead) in place; returns validation scores. The rest of the model is frozen.
 
     family_folds > 1: before the final fit, leave-families-out cross-validation (cross_validate) gives every
@@ -185,7 +191,8 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
     if log:
         log(f"topple head: {len(data['label'])} training pushes ({data['label'].mean():.1%} toppled), "
             f"{len(vdata['label'])} validation, inputs in {time.time() - t0:.0f} s")
-    train_args: dict[str, Any] = {"epochs": epochs, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay}
+    train_args: dict[str, Any] = {"epochs": epochs, "batch_size": batch_size, "lr": lr, "weight_decay": weight_decay,
+                                  "feature_dropout": feature_dropout}
     extra: dict[str, Any] = {}
     head.calibration.copy_(torch.tensor([1.0, 0.0]))
     if family_folds:
@@ -230,6 +237,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--family-folds", type=int, default=3,
                         help="leave-families-out folds whose predictions calibrate the head for new families "
                              "(default 3; 0: no calibration)")
+    parser.add_argument("--feature-dropout", type=float, default=0.5,
+                        help="chance that a training push's learned shape feature is hidden from the head, which "
+                             "then decides from the physical descriptors alone (default 0.5; 0: never)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -246,11 +256,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads > 0:
         torch.set_num_threads(args.threads)
-    if args.max_train < 100 or args.epochs < 1 or args.members < 1 or not 0.0 <= args.partial <= 1.0:
-        raise ValueError("--max-train must be >= 100, --epochs and --members >= 1, --partial in [0, 1]")
+    if args.max_train < 100 or args.epochs < 1 or args.members < 1 or not 0.0 <= args.partial <= 1.0 \
+            or not 0.0 <= args.feature_dropout < 1.0:
+        raise ValueError("--max-train must be >= 100, --epochs and --members >= 1, --partial in [0, 1], "
+                         "--feature-dropout in [0, 1)")
     ckpt = load_checkpoint(args.checkpoint)
     config = copy.deepcopy(ckpt["config"])
-    config["model"] = dict(config["model"], topple_head=True, topple_members=int(args.members))
+    config["model"] = dict(config["model"], topple_head=True, topple_members=int(args.members),
+                           topple_inputs=INPUTS_VERSION)
     model = DynamicsModel(ModelConfig.from_dict(config["model"]))
     state = {k: v for k, v in ckpt["model"].items() if not k.startswith("topple.")}  # refit an existing head
     missing = [k for k in model.load_state_dict(state, strict=False).missing_keys if not k.startswith("topple.")]
@@ -261,10 +274,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--family-folds must be 0 (no calibration) or at least 2, got {folds}")
     train, val = load_sims(args.data, ["train"]), load_sims(args.data, ["val"])
     result = fit_topple_head(model, train, val, max_train=args.max_train, partial=args.partial,
-                             epochs=args.epochs, seed=args.seed, family_folds=folds)
+                             epochs=args.epochs, seed=args.seed, family_folds=folds,
+                             feature_dropout=args.feature_dropout)
     config["topple_fit"] = {"source": ckpt["model_id"], "data": str(Path(args.data).resolve()),
                             "max_train": args.max_train, "partial": args.partial, "epochs": args.epochs,
                             "members": args.members, "seed": args.seed, "family_folds": folds,
+                            "feature_dropout": args.feature_dropout, "inputs": INPUTS_VERSION,
                             "validation": _compact(result)}
     model_id = save_checkpoint(args.out, model=model.eval(), config=config, dataset=ckpt.get("dataset", {}),
                                progress=ckpt.get("progress"), include_rng=False)

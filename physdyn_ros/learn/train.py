@@ -353,7 +353,8 @@ def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     from .model import ModelConfig
 
     a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
-    drop = {"topple_head", "topple_hidden", "topple_members"}  # the head is fitted afterwards on frozen features
+    # the head is fitted afterwards on frozen features
+    drop = {"topple_head", "topple_hidden", "topple_members", "topple_inputs"}
     if {a["prior"], b["prior"]} <= {"sliding", "coupled"}:
         drop |= {"prior", "prior_friction"}
     return {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
