@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from . import geometry as geo
 from .conventions import DT
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
-from .learn.support import DESCRIPTOR_DIM, support_descriptors
+from .learn.support import support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -203,7 +203,7 @@ class Predictor:
         # whole-push topple head, the cloud's support descriptors (learn/topple.py) that head needs
         self._topple = getattr(model, "topple", None)
         self._dynamics_dim = int(model.feature_dim)
-        self.feature_dim: int = self._dynamics_dim + (DESCRIPTOR_DIM if self._topple is not None else 0)
+        self.feature_dim: int = self._dynamics_dim + (self._topple.desc_dim if self._topple is not None else 0)
         self.max_horizon: int = int(model.cfg.max_horizon)
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
         self._subsets: dict[int, np.ndarray] = {}
@@ -283,7 +283,8 @@ class Predictor:
             features = encoded.float().cpu().numpy()
             offsets = self._model.com_estimate(encoded).double().cpu().numpy()
         if self._topple is not None:
-            features = np.concatenate([features, support_descriptors(sub, offsets).astype(np.float32)], axis=1)
+            desc = support_descriptors(sub, offsets, self._topple.inputs)
+            features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []
         for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):
             codes.append(ShapeCode(feature=feature, heading=float(c.heading),

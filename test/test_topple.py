@@ -83,7 +83,7 @@ def test_push_quantities_follow_the_tipping_barrier():
     with pytest.raises(ValueError, match="one centre of mass each"):
         support_descriptors(np.zeros((2, 10, 3)), np.zeros((1, 3)))
     with pytest.raises(ValueError, match="descriptors must be"):
-        push_quantities(desc[:, :DESCRIPTOR_DIMS[1]], np.zeros((1, 3)), np.zeros((1, 3)))
+        push_quantities(desc[:, :30], np.zeros((1, 3)), np.zeros((1, 3)))
 
 
 def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
@@ -110,7 +110,9 @@ def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
 
 def test_a_version_1_head_reads_the_leading_columns():
     """Heads fitted before the tilt barriers (inputs version 1, checkpoints without model.topple_inputs) see
-    the same inputs as then: the descriptors and push quantities hold their columns first."""
+    the same inputs as then: version-1 descriptors and push quantities are the leading columns of version 2's
+    (the Predictor's shape feature of such a model keeps its 22 descriptors), and a head reads its own columns
+    of either."""
     from physdyn_ros.learn.model import ModelConfig
     from physdyn_ros.learn.topple import ToppleHead
 
@@ -124,6 +126,13 @@ def test_a_version_1_head_reads_the_leading_columns():
     box = _surface(trimesh.creation.box(extents=(0.1, 0.2, 0.3)))
     desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)))
     vel, angvel = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    desc1 = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)), inputs=1)
+    assert desc1.shape == (3, DESCRIPTOR_DIMS[1]) and np.array_equal(desc1, desc[:, :DESCRIPTOR_DIMS[1]])
+    push1 = push_quantities(desc1, vel, angvel)
+    assert push1.shape == (3, PUSH_DIMS[1]) and np.array_equal(push1, push_quantities(desc, vel, angvel)[:, :18])
+    assert np.array_equal(old.assess(feature, desc1, vel, angvel)[0], old.assess(feature, desc, vel, angvel)[0])
+    with pytest.raises(ValueError, match="needs \\(B, 38\\) support descriptors"):
+        new.assess(feature, desc1, vel, angvel)
     for head in (old, new):
         prob, _ = head.assess(feature, desc, vel, angvel)
         push = torch.from_numpy(push_quantities(desc, vel, angvel))

@@ -155,6 +155,24 @@ def test_cli_refuses_to_overwrite_and_checks_resume(tmp_path, capsys):
     assert missing.returncode == 2 and "does not exist" in missing.stderr
 
 
+def test_resume_accepts_a_checkpoint_written_before_a_model_key_existed(tmp_path, capsys):
+    """Review finding: a run saved before model.topple_inputs existed (its stored model section lacks the key)
+    failed to resume ("its model config differs"), with and without --config."""
+    cfg = tiny_config(data={"max_train_sims": 8}, train={"epochs": 1, "batch_size": 8, "val_rollout_horizon": 0})
+    conf = _write_config(tmp_path / "tiny.yaml", cfg)
+    data, out = str(tiny_dataset()), tmp_path / "run"
+    first = _cli(capsys, "train", "--config", str(conf), "--data", data, "--out", str(out), "--no-progress")
+    assert first.returncode == 0, first.stderr[-2000:]
+    last = out / "checkpoint_last.pt"
+    ckpt = torch.load(last, weights_only=True)
+    del ckpt["config"]["model"]["topple_inputs"]  # as an older version wrote it
+    torch.save(ckpt, last)
+    for extra in ([], ["--config", str(conf)]):
+        more = _cli(capsys, "train", *extra, "--data", data, "--out", str(out), "--resume", "--max-epochs",
+                    str(2 + len(extra) // 2), "--no-progress")
+        assert more.returncode == 0, more.stderr[-2000:]
+
+
 def test_evaluate_cli_writes_reports(overfit_run, tmp_path, capsys):
     mlp = random_checkpoint(tmp_path / "mlp.pt", cell="mlp")
     out = tmp_path / "eval"

@@ -87,16 +87,18 @@ def tilt_barriers(points: np.ndarray, com: np.ndarray) -> np.ndarray:
     return GRAVITY * (height.max(axis=1) - height[:, 0])
 
 
-def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
-    """(B, DESCRIPTOR_DIM) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of mass
-    com (B, 3) in the same frame."""
+def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS_VERSION) -> np.ndarray:
+    """(B, DESCRIPTOR_DIMS[inputs]) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of
+    mass com (B, 3) in the same frame, for a topple head of inputs version `inputs`."""
+    if inputs not in INPUTS_VERSIONS:
+        raise ValueError(f"inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
     cloud = np.asarray(cloud, dtype=np.float64)
     com = np.asarray(com, dtype=np.float64).reshape(-1, 3)
     if cloud.ndim != 3 or cloud.shape[0] != com.shape[0] or cloud.shape[2] != 3:
         raise ValueError(f"clouds must be (B, N, 3) with one centre of mass each, got {cloud.shape}, {com.shape}")
     dirs = _directions()
     moments = 3 + SUPPORT_DIRECTIONS
-    out = np.empty((len(cloud), DESCRIPTOR_DIM))
+    out = np.empty((len(cloud), DESCRIPTOR_DIMS[inputs]))
     for i, (pts, c) in enumerate(zip(cloud, com)):
         z = pts[:, 2]
         z0 = float(z.min())
@@ -106,7 +108,8 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray) -> np.ndarray:
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
         out[i, moments:moments + 3] = np.mean((pts - c) ** 2, axis=0)
-        out[i, moments + 3:] = tilt_barriers(pts, c)
+        if inputs >= 2:
+            out[i, moments + 3:] = tilt_barriers(pts, c)
     return out
 
 
@@ -130,10 +133,12 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     potential barrier of tipping over the front edge (per unit mass), the kinetic energy (per unit mass), their
     ratio, the friction lever h / reach ahead, and the rate at which sliding tips the object about that edge;
     version 2: the tilt barrier ahead of the push and its minimum over directions (J/kg), and the log ratio of
-    the kinetic energy to each. desc: (B, DESCRIPTOR_DIM) of support_descriptors."""
+    the kinetic energy to each. desc: (B, DESCRIPTOR_DIMS[v]) of support_descriptors for inputs version v; the
+    result has PUSH_DIMS[v] columns."""
     desc = np.asarray(desc, dtype=np.float64)
-    if desc.ndim != 2 or desc.shape[1] != DESCRIPTOR_DIM:
-        raise ValueError(f"descriptors must be (B, {DESCRIPTOR_DIM}) (support_descriptors), got {desc.shape}")
+    widths = sorted(DESCRIPTOR_DIMS.values())
+    if desc.ndim != 2 or desc.shape[1] not in widths:
+        raise ValueError(f"descriptors must be (B, D) with D one of {widths} (support_descriptors), got {desc.shape}")
     vel = np.asarray(vel, dtype=np.float64).reshape(-1, 3)
     angvel = np.asarray(angvel, dtype=np.float64).reshape(-1, 3)
     h = desc[:, 0]
@@ -150,8 +155,10 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     kinetic = 0.5 * speed ** 2 + 0.5 * gyration2 * tip_rate ** 2
     ratio = np.log((kinetic + 1e-6) / (barrier + 1e-6))
     slide_tip = speed * h / (h * h + lever * lever + 1e-6)
-    tilt_ahead, tilt_min = _reach_at(tilt, heading[:, None])[:, 0], tilt.min(axis=1)
-    return np.concatenate([vel, angvel, np.stack([
-        speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
-        h / (lever + 1e-3), slide_tip, tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
-        np.log((kinetic + 1e-6) / (tilt_min + 1e-6))], axis=1)], axis=1)
+    columns = [speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
+               h / (lever + 1e-3), slide_tip]
+    if tilt.shape[1]:  # inputs version 2
+        tilt_ahead, tilt_min = _reach_at(tilt, heading[:, None])[:, 0], tilt.min(axis=1)
+        columns += [tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
+                    np.log((kinetic + 1e-6) / (tilt_min + 1e-6))]
+    return np.concatenate([vel, angvel, np.stack(columns, axis=1)], axis=1)

@@ -169,6 +169,9 @@ class ToppleHead(nn.Module):
         """(probability (B,), novelty (B,)) of feature (B, F), desc (B, D), vel / angvel (B, 3) in frame C: the
         forward pass and novelty above, in numpy (float64)."""
         w = self._numpy()
+        if np.ndim(desc) != 2 or np.shape(desc)[1] < self.desc_dim:
+            raise ValueError(f"this topple head (inputs version {self.inputs}) needs (B, {self.desc_dim}) support "
+                             f"descriptors, got {np.shape(desc)}")
         push = push_quantities(desc, vel, angvel)
         squashed = np.concatenate([np.asarray(desc)[:, :self.desc_dim], push[:, :self.push_dim]], axis=1)
         squashed = np.sign(squashed) * np.log1p(10.0 * np.abs(squashed))

@@ -32,7 +32,8 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
         idx = index[start:start + batch_size]
         seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start)
         feature = model.encode(seq["cloud"])
-        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy())
+        inputs = model.topple.inputs if model.topple is not None else INPUTS_VERSION
+        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy(), inputs)
         parts["feature"].append(feature.numpy())
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))
@@ -62,9 +63,10 @@ def _train_members(head: ToppleHead, x: torch.Tensor, y: torch.Tensor, xv: torch
                    epochs: int, batch_size: int, lr: float, weight_decay: float, seed: int,
                    log: Optional[Callable[[str], None]], feature_dropout: float = 0.0) -> None:
     """Standardisation and novelty from x, then each member from its own seed, keeping its epoch of lowest
-    validation loss on (xv, yv). feature_dropout: the chance that a training push's whole learned shape feature
-    is replaced by its mean (0 after standardisation), so that the head also decides from the physical
-    descriptors alone: they carry over to shapes the encoder has never seen, the feature less so."""
+    validation loss on (xv, yv). feature_dropout: the chance that a training push's whole shape feature (the
+    encoder's numbers and the dynamics network's cloud-geometry inputs) is replaced by its mean (0 after
+    standardisation), so that the head also decides from the support descriptors and push quantities alone:
+    they carry over to shapes the encoder has never seen, the feature less so."""
     head.mean.copy_(x.mean(0))
     head.std.copy_(x.std(0).clamp_min(1e-6))
     head.set_novelty(x)

@@ -109,6 +109,12 @@ def resolve_config(raw: dict[str, Any]) -> dict[str, Any]:
     return {"model": model.to_dict(), "loss": loss.to_dict(), "train": asdict(train), "data": asdict(data)}
 
 
+def _resolved_sections(config: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's stored config with the defaults of keys added since it was written (a model section
+    without topple_inputs equals one with its default): comparable with a resolved config."""
+    return resolve_config({k: config.get(k) for k in ("model", "loss", "train", "data")})
+
+
 def load_config(path: str | Path, overrides: Optional[list[str]] = None) -> dict[str, Any]:
     """Read a YAML config and apply `section.key=value` overrides (values parsed as YAML)."""
     path = Path(path)
@@ -367,8 +373,9 @@ def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
     ckpt: Optional[dict[str, Any]] = None
     if resume is not None:
         ckpt = load_checkpoint(resume, map_location="cpu")
+        stored = _resolved_sections(ckpt["config"])
         for section in ("model", "loss", "data"):
-            if ckpt["config"].get(section) != cfg[section]:
+            if stored[section] != cfg[section]:
                 raise CheckpointError(f"{resume}: its {section} config differs from the requested one; resume "
                                       "with the checkpoint's config (omit --config) or start a new run")
 
@@ -610,8 +617,9 @@ def run(args: argparse.Namespace) -> int:
         base = copy.deepcopy(load_checkpoint(resume)["config"])
         if args.config:
             requested = load_config(args.config, args.set)
+            stored = _resolved_sections(base)
             for section in ("model", "loss", "data"):
-                if requested[section] != base[section]:
+                if requested[section] != stored[section]:
                     raise CheckpointError(f"--config {args.config}: its {section} section differs from the "
                                           f"checkpoint's; resume without --config or start a new --out")
             base["train"] = requested["train"]
