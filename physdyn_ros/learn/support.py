@@ -147,7 +147,11 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     tilt = desc[:, 6 + SUPPORT_DIRECTIONS:]
     speed = np.linalg.norm(vel[:, :2], axis=1)
     heading = np.arctan2(vel[:, 1], vel[:, 0])
-    ahead, back, left, right = _reach_at(reach, heading[:, None] + _QUARTERS).T
+    angles = heading[:, None] + _QUARTERS
+    # reach and tilt barrier in one interpolation (a per-call cost at batch 1): rows B.. are the tilt's
+    at = _reach_at(np.concatenate([reach, tilt]), np.concatenate([angles, angles])) if tilt.shape[1] else \
+        _reach_at(reach, angles)
+    ahead, back, left, right = at[:len(reach)].T
     front, side = ahead, np.minimum(left, right)
     lever = np.maximum(front, 0.0)
     barrier = GRAVITY * (np.sqrt(h * h + lever * lever) - h)
@@ -158,7 +162,7 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     columns = [speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
                h / (lever + 1e-3), slide_tip]
     if tilt.shape[1]:  # inputs version 2
-        tilt_ahead, tilt_min = _reach_at(tilt, heading[:, None])[:, 0], tilt.min(axis=1)
+        tilt_ahead, tilt_min = at[len(reach):, 0], tilt.min(axis=1)
         columns += [tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
                     np.log((kinetic + 1e-6) / (tilt_min + 1e-6))]
     return np.concatenate([vel, angvel, np.stack(columns, axis=1)], axis=1)
