@@ -283,7 +283,9 @@ class Predictor:
             features = encoded.float().cpu().numpy()
             offsets = self._model.com_estimate(encoded).double().cpu().numpy()
         if self._topple is not None:
-            desc = support_descriptors(sub, offsets, self._topple.inputs)
+            # the table (z = 0 of the table frame) in each cloud's frame C, centred at its centroid
+            table = np.array([-c.centroid[2] for c in canon])
+            desc = support_descriptors(sub, offsets, self._topple.inputs, table)
             features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []
         for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):

@@ -16,7 +16,7 @@ from physdyn_ros.conventions import GRAVITY
 from physdyn_ros.learn import rules
 from physdyn_ros.predictor import compose_rotations
 from physdyn_ros.learn.support import DESCRIPTOR_DIM, DESCRIPTOR_DIMS, PUSH_DIM, PUSH_DIMS, SUPPORT_DIRECTIONS, \
-    push_quantities, support_descriptors, tilt_barriers
+    completed_cloud, push_quantities, resting_table, support_descriptors, tilt_barriers
 
 
 def _surface(mesh: trimesh.Trimesh, n: int = 3000) -> np.ndarray:
@@ -59,7 +59,7 @@ def test_a_lying_cylinder_rests_on_a_line_and_an_offset_com_lies_outside_its_sup
     strip = support_descriptors(np.concatenate([line, above])[None], np.array([[0.0, 0.0, 0.05]]))[0]
     assert _reach(strip, 0) == pytest.approx(0.101, abs=0.002) and _reach(strip, 90) == pytest.approx(0.001)
     box = _surface(trimesh.creation.box(extents=(0.1, 0.1, 0.1)))
-    shifted = support_descriptors(box[None], np.array([[0.08, 0.0, 0.0]]))[0]
+    shifted = support_descriptors(box[None], np.array([[0.08, 0.0, 0.0]]), inputs=2)[0]
     assert _reach(shifted, 0) < -0.02 and _reach(shifted, 180) > 0.1
 
 
@@ -108,6 +108,72 @@ def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
     assert _reach(desc, 90) > 0.01  # what the support polygon alone says: a 1.5 cm wide strip
 
 
+def _view(points: np.ndarray, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """The points one depth camera sees from that direction (noise-free)."""
+    from physdyn_ros.learn.views import visible
+
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    d = np.array([[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)]])
+    return points[visible(points[None], d)[0]]
+
+
+def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
+    """One camera sees two sides and the top of a box standing on the table: the view's lowest points are two
+    edges of the base, and nothing marks the far corner. Completed (inputs version 3: the table's height and the
+    mirror images through the centre of mass's vertical planes) the view gives the whole box's support, height and tilt
+    barriers; the view alone does not."""
+    box = trimesh.creation.box(extents=(0.2, 0.1, 0.3))
+    pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
+    com, table = np.zeros(3), -0.15  # the box's centre of mass, the table under its base
+    whole = support_descriptors(pts[None], com[None], inputs=2)[0]
+    view = _view(pts, 40.0, 35.0)
+    far = (view[:, 0] < -0.099).sum() / (pts[:, 0] < -0.099).sum()
+    assert len(view) < 0.6 * len(pts) and far < 0.2  # the -x face is not seen (its edge pixels leak)
+    seen = support_descriptors(view[None], com[None], inputs=2)[0]
+    done = support_descriptors(view[None], com[None], inputs=3, table=np.array([table]))[0]
+    reach = slice(3, 3 + SUPPORT_DIRECTIONS)
+    tilt = slice(6 + SUPPORT_DIRECTIONS, None)
+    assert np.abs(seen[reach] - whole[reach]).max() > 0.03  # the far corner's side of the base is missing
+    assert np.abs(done[reach] - whole[reach]).max() < 0.008
+    assert done[0] == pytest.approx(0.15, abs=1e-6) and done[1] == pytest.approx(0.3, abs=0.005)
+    assert np.abs(done[tilt] - whole[tilt]).max() < 0.02 * whole[tilt].max()
+    # a symmetric whole cloud on the table is unchanged by the completion (to the sampling's 1 mm asymmetry)
+    assert np.allclose(support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0], whole,
+                       atol=1e-3)
+
+
+def test_version_3_descriptors_are_those_of_the_completed_cloud():
+    """support_descriptors of inputs version 3 reads the mirror images off the points (no 4x cloud is built):
+    they equal version 2's descriptors of completed_cloud, on one-sided views with a table below them."""
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        pts = np.asarray(trimesh.creation.box(extents=rng.uniform(0.05, 0.3, 3)).sample(1024))
+        pts = pts[pts @ rng.normal(size=3) > -0.02]  # one side of it
+        com, table = rng.normal(size=3) * 0.01, pts[:, 2].min() - rng.uniform(0.0, 0.03)
+        fast = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
+        slow = support_descriptors(completed_cloud(pts, com, table)[None], com[None], inputs=2)[0]
+        assert np.allclose(fast, slow, rtol=0, atol=1e-12)
+
+
+def test_a_table_the_object_cannot_rest_on_is_replaced_by_its_lowest_point():
+    """The table height comes from the frame (z = 0 of the table frame): a cloud given in another frame (far
+    above the table, or reaching below it) rests on its own lowest point instead, as in inputs version 2."""
+    z = np.array([0.02, 0.1, 0.3])
+    assert resting_table(z, 0.0) == 0.0  # a view whose lowest visible point is 2 cm up
+    assert resting_table(z, None) == 0.02 and resting_table(z, float("nan")) == 0.02
+    assert resting_table(z, -0.5) == 0.02  # 52 cm under an object 28 cm tall: not its table
+    assert resting_table(z, 0.05) == 0.02  # above the lowest point
+    cloud = np.array([[0.1, 0.0, 0.3], [-0.1, 0.05, 0.02], [0.0, -0.05, 0.1]])
+    done = completed_cloud(cloud, np.array([0.01, 0.0, 0.15]), 0.0)
+    assert done.shape == (13, 3) and np.allclose(done[:3], cloud)
+    assert np.allclose(done[3:6, :2], [[-0.08, 0.0], [0.12, 0.05], [0.02, -0.05]])  # x mirrored about 0.01
+    assert np.allclose(done[6:9, :2], [[0.1, 0.0], [-0.1, -0.05], [0.0, 0.05]])  # y mirrored about 0
+    assert np.allclose(done[9:12, :2], [[-0.08, 0.0], [0.12, -0.05], [0.02, 0.05]])  # both
+    assert np.allclose(done[3:12, 2], np.tile(cloud[:, 2], 3)) and np.allclose(done[12], [0.01, 0.0, 0.0])
+    with pytest.raises(ValueError, match="one height per cloud"):
+        support_descriptors(cloud[None], np.zeros((1, 3)), inputs=3, table=np.zeros(2))
+
+
 def test_a_version_1_head_reads_the_leading_columns():
     """Heads fitted before the tilt barriers (inputs version 1, checkpoints without model.topple_inputs) see
     the same inputs as then: version-1 descriptors and push quantities are the leading columns of version 2's
@@ -118,13 +184,14 @@ def test_a_version_1_head_reads_the_leading_columns():
 
     assert ModelConfig().topple_inputs == 1
     with pytest.raises(ValueError, match="topple_inputs must be one of"):
-        ModelConfig(topple_inputs=3)
+        ModelConfig(topple_inputs=4)
     old, new = ToppleHead(8, 16, 2, inputs=1), ToppleHead(8, 16, 2, inputs=2)
+    assert DESCRIPTOR_DIMS[2] == DESCRIPTOR_DIM and PUSH_DIMS[2] == PUSH_DIM  # version 3: version 2's columns
     assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIM
     rng = np.random.default_rng(0)
     feature = rng.normal(size=(3, 8))
     box = _surface(trimesh.creation.box(extents=(0.1, 0.2, 0.3)))
-    desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)))
+    desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)), inputs=2)
     vel, angvel = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
     desc1 = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)), inputs=1)
     assert desc1.shape == (3, DESCRIPTOR_DIMS[1]) and np.array_equal(desc1, desc[:, :DESCRIPTOR_DIMS[1]])
@@ -252,7 +319,7 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     src, out = fitted
     model, ckpt = load_model(out)
     assert model.topple is not None and len(model.topple.members) == 2
-    assert model.topple.inputs == 2 and ckpt["config"]["model"]["topple_inputs"] == 2  # the tilt barriers
+    assert model.topple.inputs == 3 and ckpt["config"]["model"]["topple_inputs"] == 3  # the completed cloud
     assert ckpt["config"]["topple_fit"]["feature_dropout"] == 0.5
     assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
     assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
@@ -287,6 +354,23 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     same = calm & (base.topple_probability <= 0.5)
     if same.any():
         assert np.abs(base.positions[same] - batch.positions[same]).max() < 1e-6
+
+
+def test_the_predictor_rests_a_view_on_the_table_of_its_frame(fitted):
+    """A camera 60 deg above a ball on the table sees down to a quarter of its height: the topple head's centre
+    of mass height counts from the table (z = 0 of the table frame), not from the lowest point seen. The same
+    view 0.5 m above the table (a cloud given in another frame) counts from its lowest point."""
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load(fitted[1])
+    ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000) + [0.3, 0.1, 0.05]
+    view = _view(ball, 30.0, 60.0)
+    low = float(view[pred._subset(len(view)), 2].min())  # of the points the model reads
+    assert 0.015 < low < 0.045  # the lowest point seen is cm above the table
+    on_table, lifted = pred.encode(view), pred.encode(view + [0.0, 0.0, 0.5])
+    h = pred._dynamics_dim  # descriptor 0: the centre of mass's height over the support
+    assert on_table.feature[h] - lifted.feature[h] == pytest.approx(low, abs=1e-5)
+    assert np.array_equal(on_table.feature[:h], lifted.feature[:h])  # the learned feature does not move
 
 
 def test_the_head_keeps_the_predictor_equivariant_to_yaw(fitted):

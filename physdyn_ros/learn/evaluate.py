@@ -104,7 +104,7 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         flat_unless_toppling(d_rot[:, k:], angvel[:, k:], prob)
         if model.topple is not None:  # the whole-push topple head, as the Predictor applies it
             com = model.com_estimate(feature).double().cpu().numpy()
-            desc = support_descriptors(seq["cloud"].numpy(), com, model.topple.inputs)
+            desc = support_descriptors(seq["cloud"].numpy(), com, model.topple.inputs, seq["table"].numpy())
             head, _ = model.topple.assess(feature.cpu().numpy(), desc,
                                             seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy())
             p0, q0 = sims.pos[idx, 0], sims.quat[idx, 0]

@@ -12,6 +12,14 @@ Inputs version 2 (TILT) added the tilt barriers: the support polygon of a round 
 its discs, a ball) is the band of its lowest points, which looks as wide as a flat face, but such an object
 rolls with no barrier at all; the centre of mass rising as the surface rolls on the table tells them apart. The
 columns are appended, so a version-1 head reads the first DESCRIPTOR_DIMS[1] / PUSH_DIMS[1] columns unchanged.
+
+Inputs version 3 (VIEW) computes the same columns from the cloud completed where one depth camera cannot see
+(completed_cloud): the bottom on the table and the far side are missing from a view, so its lowest points (the
+support) and its convex surface (the tilt barriers) described only the near side. Two facts fill them in: the
+object rests on the table (z = table, known in the table frame) with its centre of mass over the support, and
+most objects are mirror-symmetric about the vertical planes through their centre of mass along their principal
+axes (boxes, cans, bottles, mugs, chairs): the mirror images of the seen side through those planes (frame C's
+x axis is the cloud's principal axis) cover the hidden one.
 """
 from __future__ import annotations
 
@@ -27,21 +35,28 @@ from ..conventions import GRAVITY, TOPPLE_ANGLE
 SUPPORT_DIRECTIONS = 16
 #: Tilt angles (rad, 0 to the topple angle) at which the centre of mass height is measured for the tilt barrier.
 TILT_ANGLES = np.linspace(0.0, TOPPLE_ANGLE, 10)  # conventions: rad
-#: Inputs versions of the topple head: 1 (session 8) and 2 (+ tilt barriers); the current one.
-INPUTS_VERSIONS = (1, 2)
-INPUTS_VERSION = 2
+#: Inputs versions of the topple head: 1 (session 8), 2 (+ tilt barriers), 3 (2 on the completed cloud); the
+#: current one.
+INPUTS_VERSIONS = (1, 2, 3)
+INPUTS_VERSION = 3
 #: Per-object descriptors, by inputs version: centre-of-mass height over the lowest point, height, area of the
 #: support polygon, the polygon's reach in each direction, the cloud's second moments about the centre of mass
-#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers).
-DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, 2: 3 + 2 * SUPPORT_DIRECTIONS + 3}
+#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); version 3: version 2's on the
+#: completed cloud, whose lowest point is the table.
+DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, 2: 3 + 2 * SUPPORT_DIRECTIONS + 3, 3: 3 + 2 * SUPPORT_DIRECTIONS + 3}
 #: Per-push quantities derived from the descriptors and the initial twist (push_quantities), by inputs version.
-PUSH_DIMS = {1: 6 + 12, 2: 6 + 12 + 4}
+PUSH_DIMS = {1: 6 + 12, 2: 6 + 12 + 4, 3: 6 + 12 + 4}
 DESCRIPTOR_DIM = DESCRIPTOR_DIMS[INPUTS_VERSION]
 PUSH_DIM = PUSH_DIMS[INPUTS_VERSION]
 #: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.
 BASE_BAND_M = 0.003
 BASE_BAND_REL = 0.03
 _INFLATE = 0.001  # m: a support seen as a line or a point becomes a thin polygon (a lying cylinder's edge)
+#: A table below the lowest point by more than this fraction of the object's height over it, or above it by more
+#: than TABLE_ABOVE_M, is not what the object rests on (a cloud given outside the table frame): the lowest point
+#: stands in for it. A camera 20 deg above a ball sees down to 0.33 of its height.
+TABLE_GAP_REL = 0.5
+TABLE_ABOVE_M = 0.005
 
 
 def _support_reach(base: np.ndarray, centre: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, float]:
@@ -78,37 +93,100 @@ def _tilt_down() -> np.ndarray:
 _TILT_DOWN = _tilt_down()
 
 
+def _tilt_heights(points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(K, A): the height of `com` over the table when the object of `points` rests tilted by each of
+    TILT_ANGLES toward each support direction on its own convex surface."""
+    return ((points - com) @ _TILT_DOWN).max(axis=0).reshape(SUPPORT_DIRECTIONS, len(TILT_ANGLES))
+
+
+def _barriers(height: np.ndarray) -> np.ndarray:
+    return GRAVITY * (height.max(axis=1) - height[:, 0])
+
+
 def tilt_barriers(points: np.ndarray, com: np.ndarray) -> np.ndarray:
     """(K,) J/kg: the rise of the centre of mass `com` (3,) when the object of surface points `points` (N, 3)
     (frame C, z up) tilts up to TOPPLE_ANGLE toward each support direction resting on its own convex surface:
     g times the largest height over the table along the way, less the height at rest. About the reach-and-height
     barrier for a box, zero for an object that rolls (a round base), whatever its band of lowest points."""
-    height = ((points - com) @ _TILT_DOWN).max(axis=0).reshape(SUPPORT_DIRECTIONS, len(TILT_ANGLES))
-    return GRAVITY * (height.max(axis=1) - height[:, 0])
+    return _barriers(_tilt_heights(points, com))
 
 
-def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS_VERSION) -> np.ndarray:
+def resting_table(z: np.ndarray, table: float | None) -> float:
+    """The height of the plane an object with point heights `z` rests on: `table` where it lies just below the
+    lowest point (a view's lowest point may be cm above the table), else the lowest point."""
+    z0, z1 = float(np.min(z)), float(np.max(z))
+    if table is None or not np.isfinite(table):
+        return z0
+    table = float(table)
+    return table if z0 - TABLE_GAP_REL * (z1 - table) <= table <= z0 + TABLE_ABOVE_M else z0
+
+
+_FLIPS = np.array([[1.0, 1.0, 1.0], [-1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, -1.0, 1.0]])
+# the support direction that the mirror images through x = c_x, y = c_y and both see as direction k
+_K = np.arange(SUPPORT_DIRECTIONS)
+_MIRRORED = np.stack([_K, (SUPPORT_DIRECTIONS // 2 - _K) % SUPPORT_DIRECTIONS, (-_K) % SUPPORT_DIRECTIONS,
+                      (_K + SUPPORT_DIRECTIONS // 2) % SUPPORT_DIRECTIONS])
+assert SUPPORT_DIRECTIONS % 2 == 0  # the directions must map onto each other under the mirrors
+
+
+def _mirror_images(points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(4N, 3): the points and their mirror images through the vertical planes x = com_x, y = com_y and both."""
+    return (com + (points - com)[None] * _FLIPS[:, None]).reshape(-1, 3)
+
+
+def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = None) -> np.ndarray:
+    """(4N + 1, 3) the points (N, 3) (frame C, z up) with what a single view misses of the support: their mirror
+    images through the vertical planes x = com_x and y = com_y and through both (the point reflection about the
+    vertical axis of the centre of mass `com` (3,)), and the centre of mass's foot on the table (height
+    `table`, resting_table), which lies inside the support polygon of an object at rest. support_descriptors
+    of inputs version 3 are those of this cloud (computed without building it)."""
+    pts = np.asarray(points, dtype=np.float64)
+    c = np.asarray(com, dtype=np.float64)
+    foot = np.array([[c[0], c[1], resting_table(pts[:, 2], table)]])
+    return np.concatenate([_mirror_images(pts, c), foot])
+
+
+def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS_VERSION,
+                        table: np.ndarray | None = None) -> np.ndarray:
     """(B, DESCRIPTOR_DIMS[inputs]) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of
-    mass com (B, 3) in the same frame, for a topple head of inputs version `inputs`."""
+    mass com (B, 3) in the same frame, for a topple head of inputs version `inputs`. table (B,): the height of
+    the table plane in the same frame (version 3; None: each cloud's lowest point)."""
     if inputs not in INPUTS_VERSIONS:
         raise ValueError(f"inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
     cloud = np.asarray(cloud, dtype=np.float64)
     com = np.asarray(com, dtype=np.float64).reshape(-1, 3)
     if cloud.ndim != 3 or cloud.shape[0] != com.shape[0] or cloud.shape[2] != 3:
         raise ValueError(f"clouds must be (B, N, 3) with one centre of mass each, got {cloud.shape}, {com.shape}")
+    tables = np.full(len(cloud), np.nan) if table is None else np.asarray(table, dtype=np.float64).reshape(-1)
+    if len(tables) != len(cloud):
+        raise ValueError(f"table must hold one height per cloud ({len(cloud)}), got {len(tables)}")
     dirs = _directions()
     moments = 3 + SUPPORT_DIRECTIONS
     out = np.empty((len(cloud), DESCRIPTOR_DIMS[inputs]))
     for i, (pts, c) in enumerate(zip(cloud, com)):
         z = pts[:, 2]
         z0 = float(z.min())
+        foot = np.array([c[0], c[1], resting_table(z, tables[i])])
+        if inputs >= 3:  # the completed cloud (completed_cloud): its images share the points' heights
+            z0 = min(z0, float(foot[2]))
         height = float(z.max()) - z0
-        base = pts[z < z0 + max(BASE_BAND_M, BASE_BAND_REL * height), :2]
-        reach, area = _support_reach(base, c[:2], dirs)
+        band = z0 + max(BASE_BAND_M, BASE_BAND_REL * height)
+        base = pts[z < band]
+        if inputs >= 3:
+            base = np.concatenate([_mirror_images(base, c), foot[None]])
+            base = base[base[:, 2] < band]
+        reach, area = _support_reach(base[:, :2], c[:2], dirs)
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
-        out[i, moments:moments + 3] = np.mean((pts - c) ** 2, axis=0)
-        if inputs >= 2:
+        second = np.mean((pts - c) ** 2, axis=0)
+        if inputs >= 3:  # the mirror images have the points' second moments, the foot its own
+            second = (4 * len(pts) * second + (foot - c) ** 2) / (4 * len(pts) + 1)
+        out[i, moments:moments + 3] = second
+        if inputs >= 3:
+            # an image's height tilted toward direction k is the points' toward the mirrored direction
+            tilt = _tilt_heights(pts, c)[_MIRRORED].max(axis=0)
+            out[i, moments + 3:] = _barriers(np.maximum(tilt, (c[2] - foot[2]) * np.cos(TILT_ANGLES)))
+        elif inputs >= 2:
             out[i, moments + 3:] = tilt_barriers(pts, c)
     return out
 

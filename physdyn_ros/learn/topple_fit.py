@@ -33,7 +33,8 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
         seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start)
         feature = model.encode(seq["cloud"])
         inputs = model.topple.inputs if model.topple is not None else INPUTS_VERSION
-        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy(), inputs)
+        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy(), inputs,
+                                   seq["table"].numpy())
         parts["feature"].append(feature.numpy())
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))

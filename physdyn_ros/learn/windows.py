@@ -174,7 +174,8 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     rng: a generator for random point subsets (training); None gives the fixed subset (evaluation).
     partial / noise: the fraction of windows seen as partial views and their sensor noise (m); their views
     come from view_rng (default: rng, else a fixed seed, so evaluation is reproducible).
-    Extra keys: heading (B,), centroid (B, 3) of the frame placement, start (B,), sim (B,).
+    Extra keys: heading (B,), centroid (B, 3) of the frame placement, start (B,), sim (B,), table (B,) the height
+    of the table plane (world z = 0) in frame C.
     """
     index = np.asarray(index, dtype=np.int64)
     starts = np.asarray(starts, dtype=np.int64)
@@ -196,7 +197,8 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     inc = frames.world_increments(pos, quat, vel, angvel)
     # the posed cloud is centred at the centre of mass: the COM seen from the centroid is -centroid
     out = {"cloud": cloud, "vel": frames.world_to_c(vel, h), "angvel": frames.world_to_c(angvel, h),
-           "topple": sims.toppled[pick][:, 1:].astype(np.float32), "com": frames.world_to_c(-canon.centroid, heading)}
+           "topple": sims.toppled[pick][:, 1:].astype(np.float32), "com": frames.world_to_c(-canon.centroid, heading),
+           "table": -(pos[:, 0, 2] + canon.centroid[:, 2])}
     for k, v in inc.items():
         out[k] = frames.world_to_c(v, h)
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for k, v in out.items()}
