@@ -16,7 +16,7 @@ from physdyn_ros.conventions import GRAVITY
 from physdyn_ros.learn import rules
 from physdyn_ros.predictor import compose_rotations
 from physdyn_ros.learn.support import DESCRIPTOR_DIM, DESCRIPTOR_DIMS, PUSH_DIM, PUSH_DIMS, SUPPORT_DIRECTIONS, \
-    completed_cloud, push_quantities, resting_table, support_descriptors, tilt_barriers
+    SUPPORT_GAP_M, completed_cloud, push_quantities, resting_table, support_descriptors, tilt_barriers
 
 
 def _surface(mesh: trimesh.Trimesh, n: int = 3000) -> np.ndarray:
@@ -144,15 +144,43 @@ def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
 
 def test_version_3_descriptors_are_those_of_the_completed_cloud():
     """support_descriptors of inputs version 3 reads the mirror images off the points (no 4x cloud is built):
-    they equal version 2's descriptors of completed_cloud, on one-sided views with a table below them."""
+    on one-sided views they equal version 2's descriptors of completed_cloud; where the table lies below the
+    lowest point, all but the support polygon (whose band starts at the lowest point seen)."""
     rng = np.random.default_rng(0)
+    polygon = slice(2, 3 + SUPPORT_DIRECTIONS)  # area and reach
     for _ in range(20):
         pts = np.asarray(trimesh.creation.box(extents=rng.uniform(0.05, 0.3, 3)).sample(1024))
         pts = pts[pts @ rng.normal(size=3) > -0.02]  # one side of it
-        com, table = rng.normal(size=3) * 0.01, pts[:, 2].min() - rng.uniform(0.0, 0.03)
-        fast = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
-        slow = support_descriptors(completed_cloud(pts, com, table)[None], com[None], inputs=2)[0]
-        assert np.allclose(fast, slow, rtol=0, atol=1e-12)
+        com = rng.normal(size=3) * 0.01
+        for table in (pts[:, 2].min(), pts[:, 2].min() - rng.uniform(0.0, 0.03), pts[:, 2].min() + 0.004):
+            fast = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
+            slow = support_descriptors(completed_cloud(pts, com, table)[None], com[None], inputs=2)[0]
+            same = np.ones(len(fast), dtype=bool)
+            if table < pts[:, 2].min():
+                same[polygon] = False
+            assert np.allclose(fast[same], slow[same], rtol=0, atol=1e-12)
+
+
+def test_a_cloud_without_its_bottom_slice_keeps_its_support():
+    """The perception node removes the points within 5 mm of the table plane: the base outline of a real cloud
+    lies a few mm up, and version 3 reads the support there (within SUPPORT_GAP_M of the table). A view that
+    has not seen its support at all (a ball from 60 deg above: its lowest point 2.5 cm up) rests on the foot of
+    its centre of mass alone."""
+    box = trimesh.creation.box(extents=(0.1, 0.06, 0.1))
+    pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
+    com, table = np.zeros((1, 3)), np.array([-0.05])
+    whole = support_descriptors(pts[None], com, inputs=3, table=table)[0]
+    cut = pts[pts[:, 2] > table[0] + 0.005]
+    seen = support_descriptors(cut[None], com, inputs=3, table=table)[0]
+    reach = slice(3, 3 + SUPPORT_DIRECTIONS)
+    assert whole[2] == pytest.approx(0.006, rel=0.1) and seen[2] == pytest.approx(whole[2], rel=0.15)
+    assert np.abs(seen[reach] - whole[reach]).max() < 0.004
+    assert seen[0] == pytest.approx(0.05, abs=1e-3) and seen[1] == pytest.approx(whole[1], abs=1e-3)  # from the table
+    ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000)
+    top = _view(ball, 30.0, 60.0)
+    assert top[:, 2].min() > -0.05 + SUPPORT_GAP_M
+    alone = support_descriptors(top[None], np.zeros((1, 3)), inputs=3, table=np.array([-0.05]))[0]
+    assert alone[2] < 1e-5 and np.abs(alone[reach]).max() < 0.0015  # a point, inflated by 1 mm
 
 
 def test_a_table_the_object_cannot_rest_on_is_replaced_by_its_lowest_point():
@@ -383,6 +411,28 @@ def test_the_head_keeps_the_predictor_equivariant_to_yaw(fitted):
     b = pred.rollout(geo.rotate_yaw(cloud, psi), geo.rotate_yaw(v, psi), geo.rotate_yaw(w, psi), 30)
     assert abs(a.topple_probability - b.topple_probability) < 1e-4
     assert np.abs(geo.rotate_yaw(a.positions, psi) - b.positions).max() < 1e-4
+
+
+def test_training_windows_carry_the_table_the_predictor_reads():
+    """fit-topple and evaluation take the table's height in frame C from the simulation (make_windows "table");
+    the Predictor from the cloud's frame (z = 0 of the table frame): both give the same height for the same
+    posed cloud, and a whole cloud at the push instant rests on it (its lowest point within 1 cm above)."""
+    from physdyn_ros.learn import frames
+    from physdyn_ros.learn.windows import load_sims, make_windows
+
+    sims = load_sims(tiny_dataset(), ["train"])
+    index = np.arange(min(30, len(sims)))
+    n = sims.points.shape[1]
+    seq = make_windows(sims, index, np.zeros(len(index), dtype=np.int64), 2, n)
+    table = seq["table"].numpy()
+    gap = seq["cloud"].numpy()[:, :, 2].min(axis=1) - table
+    assert np.all(gap > -1e-4) and np.all(gap < 0.01), gap
+    world = frames.pose_cloud(sims.points[sims.shape_index[index]], sims.scale[index], sims.quat[index, 0])
+    world = world + sims.pos[index, 0][:, None, :]  # the cloud in the table frame, as perception gives it
+    as_predictor = -frames.canonicalize_cloud(world).centroid[:, 2]
+    assert np.allclose(as_predictor, table, atol=1e-5)
+    later = make_windows(sims, index, np.full(len(index), 5), 2, n)  # mid-motion: above the table, up to the
+    assert np.all(later["cloud"].numpy()[:, :, 2].min(axis=1) - later["table"].numpy() > -0.005)  # contacts' mm
 
 
 def test_evaluation_applies_the_head_as_the_predictor_does(fitted):

@@ -19,7 +19,10 @@ support) and its convex surface (the tilt barriers) described only the near side
 object rests on the table (z = table, known in the table frame) with its centre of mass over the support, and
 most objects are mirror-symmetric about the vertical planes through their centre of mass along their principal
 axes (boxes, cans, bottles, mugs, chairs): the mirror images of the seen side through those planes (frame C's
-x axis is the cloud's principal axis) cover the hidden one.
+x axis is the cloud's principal axis) cover the hidden one. The support band still starts at the lowest point
+seen where that lies within SUPPORT_GAP_M of the table: the perception node removes the points within 5 mm of
+the table plane, so a real cloud's base outline lies a few mm up; a view whose lowest point is higher (a ball
+seen from above) has not seen its support, and the centre of mass's foot alone stands for it.
 """
 from __future__ import annotations
 
@@ -54,9 +57,12 @@ BASE_BAND_REL = 0.03
 _INFLATE = 0.001  # m: a support seen as a line or a point becomes a thin polygon (a lying cylinder's edge)
 #: A table below the lowest point by more than this fraction of the object's height over it, or above it by more
 #: than TABLE_ABOVE_M, is not what the object rests on (a cloud given outside the table frame): the lowest point
-#: stands in for it. A camera 20 deg above a ball sees down to 0.33 of its height.
+#: stands in for it. A camera 70 deg above a ball (the steepest view in training) sees down to 0.33 of its height.
 TABLE_GAP_REL = 0.5
 TABLE_ABOVE_M = 0.005
+#: Version 3: the support band starts at the lowest point when that lies within this of the table (the perception
+#: node's plane_distance of 5 mm, sensor noise, a sampled round bottom), else the support is unseen.
+SUPPORT_GAP_M = 0.01
 
 
 def _support_reach(base: np.ndarray, centre: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, float]:
@@ -139,7 +145,8 @@ def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = N
     images through the vertical planes x = com_x and y = com_y and through both (the point reflection about the
     vertical axis of the centre of mass `com` (3,)), and the centre of mass's foot on the table (height
     `table`, resting_table), which lies inside the support polygon of an object at rest. support_descriptors
-    of inputs version 3 are those of this cloud (computed without building it)."""
+    of inputs version 3 are version 2's of this cloud (computed without building it), except that the support
+    band starts at the lowest point of `points` where that lies within SUPPORT_GAP_M of the table."""
     pts = np.asarray(points, dtype=np.float64)
     c = np.asarray(com, dtype=np.float64)
     foot = np.array([[c[0], c[1], resting_table(pts[:, 2], table)]])
@@ -165,16 +172,17 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS
     out = np.empty((len(cloud), DESCRIPTOR_DIMS[inputs]))
     for i, (pts, c) in enumerate(zip(cloud, com)):
         z = pts[:, 2]
-        z0 = float(z.min())
+        z0 = lowest = float(z.min())
+        top = float(z.max())
         foot = np.array([c[0], c[1], resting_table(z, tables[i])])
         if inputs >= 3:  # the completed cloud (completed_cloud): its images share the points' heights
-            z0 = min(z0, float(foot[2]))
-        height = float(z.max()) - z0
-        band = z0 + max(BASE_BAND_M, BASE_BAND_REL * height)
-        base = pts[z < band]
-        if inputs >= 3:
+            z0, top = min(z0, float(foot[2])), max(top, float(foot[2]))
+            if lowest - foot[2] > SUPPORT_GAP_M:  # the support was not seen: the foot alone
+                lowest = float(foot[2])
+        height = top - z0
+        base = pts[z < lowest + max(BASE_BAND_M, BASE_BAND_REL * height)]
+        if inputs >= 3:  # the foot lies inside the support of an object at rest
             base = np.concatenate([_mirror_images(base, c), foot[None]])
-            base = base[base[:, 2] < band]
         reach, area = _support_reach(base[:, :2], c[:2], dirs)
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
