@@ -435,6 +435,22 @@ def test_training_windows_carry_the_table_the_predictor_reads():
     assert np.all(later["cloud"].numpy()[:, :, 2].min(axis=1) - later["table"].numpy() > -0.005)  # contacts' mm
 
 
+def test_evaluation_sees_clouds_as_the_perception_node_delivers_them():
+    """`physdyn evaluate --plane-gap 0.005`: the points within 5 mm of the table are removed from the model's
+    clouds (the perception node's plane_distance), full clouds and views alike; 0 changes nothing."""
+    from physdyn_ros.learn.windows import load_sims, sequences
+
+    sims = load_sims(tiny_dataset(), ["test"])
+    index = np.arange(min(20, len(sims)))
+    plain = sequences(sims, 1, 256, index, 0.5, 0.002, view_seed=3)
+    same = sequences(sims, 1, 256, index, 0.5, 0.002, view_seed=3, plane_gap=0.0)
+    assert torch.equal(plain["cloud"], same["cloud"])
+    cut = sequences(sims, 1, 256, index, 0.5, 0.002, view_seed=3, plane_gap=0.005)
+    low = cut["cloud"][:, :, 2].min(dim=1).values - cut["table"]
+    assert cut["cloud"].shape == plain["cloud"].shape and bool(torch.all(low > 0.005 - 1e-6))
+    assert bool(torch.all(plain["cloud"][:, :, 2].min(dim=1).values - plain["table"] < 0.005))
+
+
 def test_evaluation_applies_the_head_as_the_predictor_does(fitted):
     """physdyn evaluate's roll-outs carry the head's probabilities (same rule as the Predictor)."""
     from physdyn_ros.learn.checkpoint import load_model

@@ -73,9 +73,10 @@ def _batches(n: int, size: int):
 @torch.inference_mode()
 def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, horizon: int, steps_in: int = 1,
                    batch_size: int = 256, device: str | torch.device = "cpu", partial: float = 0.0,
-                   noise: float = 0.0) -> Trajectories:
+                   noise: float = 0.0, plane_gap: float = 0.0) -> Trajectories:
     """Closed-loop roll-outs from frame 0; with steps_in = k, frames 1..k-1 are observed (fed and kept).
-    partial / noise: that fraction of the clouds seen as one depth camera's view (fixed views, learn/views.py)."""
+    partial / noise: that fraction of the clouds seen as one depth camera's view (fixed views, learn/views.py);
+    plane_gap: the points within that many m of the table removed (windows.above_table)."""
     if steps_in < 1 or steps_in > horizon:
         raise ValueError(f"steps_in must be in 1..{horizon}, got {steps_in}")
     model.eval()
@@ -85,7 +86,8 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         horizon = max(horizon, HEAD_TIMING_STEPS)
     for sl in _batches(len(index), batch_size):
         idx = index[sl]
-        seq = sequences(sims, wanted, model.cfg.num_points, idx, partial, noise, view_seed=sl.start)
+        seq = sequences(sims, wanted, model.cfg.num_points, idx, partial, noise, view_seed=sl.start,
+                        plane_gap=plane_gap)
         k = steps_in - 1
         obs_v = seq["vel"][:, 1:1 + k].to(device) if k else None
         obs_w = seq["angvel"][:, 1:1 + k].to(device) if k else None
@@ -124,12 +126,13 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
 @torch.inference_mode()
 def model_single_step(model: DynamicsModel, sims: SimArrays, index: np.ndarray, horizon: int,
                       batch_size: int = 256, device: str | torch.device = "cpu", partial: float = 0.0,
-                      noise: float = 0.0) -> dict[str, np.ndarray]:
+                      noise: float = 0.0, plane_gap: float = 0.0) -> dict[str, np.ndarray]:
     """Teacher-forced per-step change errors (B, H) in paper units (see change_errors)."""
     model.eval()
     parts: dict[str, list[np.ndarray]] = {}
     for sl in _batches(len(index), batch_size):
-        seq = sequences(sims, horizon, model.cfg.num_points, index[sl], partial, noise, view_seed=sl.start)
+        seq = sequences(sims, horizon, model.cfg.num_points, index[sl], partial, noise, view_seed=sl.start,
+                        plane_gap=plane_gap)
         feature = model.encode(seq["cloud"].to(device))
         raw = model.teacher_forced(feature, seq["vel"][:, :-1].to(device), seq["angvel"][:, :-1].to(device))
         pred = {k: v.double().cpu().numpy() for k, v in model.denormalize(raw).items()}
@@ -257,11 +260,22 @@ def _fmt(x: Any, digits: int = 3) -> str:
     return "–" if x is None else f"{x:.{digits}f}"
 
 
+def _cloud_note(report: dict[str, Any]) -> str:
+    """How the model's clouds were seen, where not whole (partial views, the table's slice removed)."""
+    notes = []
+    if report.get("partial_views"):
+        notes.append(f"{report['partial_views']:.0%} of the model's clouds seen as one depth camera's view "
+                     f"({1e3 * report.get('view_noise', 0.0):.0f} mm noise)")
+    if report.get("plane_gap"):
+        notes.append(f"the points within {1e3 * report['plane_gap']:.0f} mm of the table removed (--plane-gap)")
+    return (" Clouds: " + "; ".join(notes) + ".") if notes else ""
+
+
 def markdown_report(report: dict[str, Any]) -> str:
     lines = [f"# Evaluation: {report['checkpoint']}", "",
              f"data `{report['data']}` split `{report['split']}`, horizon {report['horizon']} steps "
              f"({report['horizon'] * report['dt']:.1f} s), steps in {report['steps_in']}. "
-             "Units: v cm/s, w rad/s, P cm, |theta| deg, axis 1-cos.", ""]
+             "Units: v cm/s, w rad/s, P cm, |theta| deg, axis 1-cos." + _cloud_note(report), ""]
     groups = [("overall", report["results"]["overall"])] + sorted(report["results"]["per_category"].items())
     def single_step_table(key: str) -> list[str]:
         rows = ["| group | method | v | w | P | abs theta | axis |", "|---|---|---|---|---|---|---|"]
@@ -345,6 +359,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--partial", type=float, default=0.0, help="fraction of the clouds the model sees as one "
                         "depth camera's view (fixed random viewpoints above the table; default 0 = whole surface)")
     parser.add_argument("--view-noise", type=float, default=0.002, help="m of Gaussian noise on partial views")
+    parser.add_argument("--plane-gap", type=float, default=0.0,
+                        help="remove the points within this many m of the table from the model's clouds, as the "
+                        "perception node removes the table plane (its plane_distance: 0.005; default 0: none)")
     parser.add_argument("--friction-error", type=float, default=0.2,
                         help="relative friction error of the pybullet baseline (default 0.2 = +-20%%)")
     parser.add_argument("--max-sequences", type=int, default=None, help="evaluate at most this many sequences")
@@ -359,8 +376,9 @@ def run(args: argparse.Namespace) -> int:
     from .checkpoint import load_model
     from .windows import load_sims
 
-    if not 0.0 <= args.partial <= 1.0 or args.view_noise < 0:
-        raise ValueError(f"--partial must be in [0, 1] and --view-noise >= 0, got {args.partial}, {args.view_noise}")
+    if not 0.0 <= args.partial <= 1.0 or args.view_noise < 0 or not 0.0 <= args.plane_gap < 0.1:
+        raise ValueError(f"--partial must be in [0, 1], --view-noise >= 0 and --plane-gap in [0, 0.1) m, got "
+                         f"{args.partial}, {args.view_noise}, {args.plane_gap}")
     if args.threads:
         torch.set_num_threads(args.threads)
     ckpt_path = Path(args.checkpoint) if args.checkpoint else DEFAULT_MODEL
@@ -374,7 +392,7 @@ def run(args: argparse.Namespace) -> int:
         index = np.linspace(0, len(sims) - 1, args.max_sequences).astype(np.int64)
     t0 = time.perf_counter()
     gt = ground_truth(sims, index, args.horizon)
-    view = (args.partial, args.view_noise)
+    view = (args.partial, args.view_noise, args.plane_gap)
     methods: dict[str, Trajectories] = {"model": model_rollouts(model, sims, index, args.horizon, args.steps_in,
                                                                args.batch_size, args.device, *view)}
     singles = {"model": model_single_step(model, sims, index, args.horizon, args.batch_size, args.device, *view)}
@@ -404,7 +422,7 @@ def run(args: argparse.Namespace) -> int:
                     r["pos"], r["quat"], r["lin_vel"], r["ang_vel"], r["toppled"].astype(np.float64))
     results = evaluate_all(methods, singles, gt, sims, index, args.horizon)
     report = {"checkpoint": str(ckpt_path), "model_id": ckpt["model_id"], "data": str(args.data),
-              "partial_views": args.partial, "view_noise": args.view_noise,
+              "partial_views": args.partial, "view_noise": args.view_noise, "plane_gap": args.plane_gap,
               "split": args.split, "categories": args.categories, "horizon": args.horizon, "dt": sims.dt,
               "steps_in": args.steps_in, "sequences": int(len(index)), "seconds": time.perf_counter() - t0,
               "results": results}

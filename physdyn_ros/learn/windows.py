@@ -166,14 +166,25 @@ def partial_clouds(cloud: np.ndarray, partial: float, noise: float, rng: np.rand
     return cloud
 
 
+def above_table(cloud: np.ndarray, table: np.ndarray, gap: float) -> np.ndarray:
+    """The clouds (B, N, 3) as the perception node delivers them: the points within `gap` m of the table plane
+    (height table (B,), same frame) removed, the rest resampled to N (cycling; a cloud with no point above the
+    gap is kept whole)."""
+    keep = cloud[..., 2] > np.asarray(table, dtype=np.float64)[:, None] + gap
+    keep[~keep.any(axis=1)] = True
+    idx = views.sample_visible(keep, cloud.shape[1], np.random.default_rng(0))
+    return np.take_along_axis(cloud, idx[..., None], axis=1)
+
+
 def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length: int, num_points: int,
                  rng: Optional[np.random.Generator] = None, partial: float = 0.0, noise: float = 0.0,
-                 view_rng: Optional[np.random.Generator] = None) -> dict[str, torch.Tensor]:
+                 view_rng: Optional[np.random.Generator] = None, plane_gap: float = 0.0) -> dict[str, torch.Tensor]:
     """Windows of `length` frames of simulations `index` starting at `starts`, in frame C, as float32 tensors.
 
     rng: a generator for random point subsets (training); None gives the fixed subset (evaluation).
     partial / noise: the fraction of windows seen as partial views and their sensor noise (m); their views
-    come from view_rng (default: rng, else a fixed seed, so evaluation is reproducible).
+    come from view_rng (default: rng, else a fixed seed, so evaluation is reproducible). plane_gap > 0: the
+    points within that many m of the table removed, as the perception node removes the table plane (above_table).
     Extra keys: heading (B,), centroid (B, 3) of the frame placement, start (B,), sim (B,), table (B,) the height
     of the table plane (world z = 0) in frame C.
     """
@@ -189,6 +200,8 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     if partial > 0:
         gen = view_rng if view_rng is not None else rng if rng is not None else np.random.default_rng(0)
         cloud_world = partial_clouds(cloud_world, partial, noise, gen)
+    if plane_gap > 0:  # the posed cloud is centred at the centre of mass: the table lies at -pos_z
+        cloud_world = above_table(cloud_world, -pos[:, 0, 2], plane_gap)
     sub = _subsample_index(len(index), cloud_world.shape[1], num_points, rng)
     canon = frames.canonicalize_cloud(cloud_world, keep=sub)
     cloud = canon.points
@@ -264,11 +277,12 @@ class WindowDataset(torch.utils.data.Dataset):
 
 
 def sequences(sims: SimArrays, horizon: int, num_points: int, index: Optional[np.ndarray] = None,
-              partial: float = 0.0, noise: float = 0.0, view_seed: int = 0) -> dict[str, torch.Tensor]:
+              partial: float = 0.0, noise: float = 0.0, view_seed: int = 0,
+              plane_gap: float = 0.0) -> dict[str, torch.Tensor]:
     """Whole evaluation sequences: frames 0..horizon of each simulation, the cloud posed at frame 0
-    (partial > 0: that fraction seen as partial views, reproducible by view_seed)."""
+    (partial > 0: that fraction seen as partial views, reproducible by view_seed; plane_gap: make_windows)."""
     if horizon + 1 > sims.num_frames:
         raise ValueError(f"horizon {horizon} needs {horizon + 1} frames; the dataset stores {sims.num_frames}")
     index = np.arange(len(sims)) if index is None else np.asarray(index, dtype=np.int64)
     return make_windows(sims, index, np.zeros(len(index), dtype=np.int64), horizon + 1, num_points, None,
-                        partial, noise, np.random.default_rng(view_seed))
+                        partial, noise, np.random.default_rng(view_seed), plane_gap)
