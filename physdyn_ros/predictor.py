@@ -260,14 +260,17 @@ class Predictor:
             self._subsets[n] = idx
         return self._subsets[n]
 
-    def encode(self, cloud: Any) -> ShapeCode:
-        """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred)."""
-        return self.encode_many([cloud])[0]
+    def encode(self, cloud: Any, table_height: float = 0.0) -> ShapeCode:
+        """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred).
+        table_height: z of the table plane under the object (m; 0: the plane z = 0 of the table frame)."""
+        return self.encode_many([cloud], [table_height])[0]
 
-    def encode_many(self, clouds: Sequence[Any]) -> list[ShapeCode]:
+    def encode_many(self, clouds: Sequence[Any], table_heights: Optional[Sequence[float]] = None) -> list[ShapeCode]:
         """Shape codes of several clouds (each (N_i, 3), table frame) with one pass of the encoder: what a table
         with several objects costs (perception), about one encoder call instead of one per object. Each code
-        equals encode(cloud) to float32 rounding."""
+        equals encode(cloud) to float32 rounding. table_heights: z of the table plane under each object (m;
+        default 0: the plane z = 0 of the table frame), which the topple head's support descriptors count from
+        (the perception node passes the plane it fitted)."""
         import torch
 
         from .learn.frames import c_to_world, canonicalize_cloud
@@ -275,6 +278,10 @@ class Predictor:
         if not len(clouds):
             return []
         pts = [check_cloud(c) for c in clouds]
+        heights = np.zeros(len(pts)) if table_heights is None else np.asarray(table_heights, dtype=np.float64)
+        if heights.shape != (len(pts),) or not np.all(np.isfinite(heights)):
+            raise ValueError(f"table_heights must be one finite height (m) per cloud ({len(pts)}), got "
+                             f"{heights.tolist()}")
         canon = [canonicalize_cloud(p) for p in pts]
         local = [c.points for c in canon]
         sub = np.stack([loc[self._subset(len(p))] for loc, p in zip(local, pts)]).astype(np.float32)
@@ -283,8 +290,8 @@ class Predictor:
             features = encoded.float().cpu().numpy()
             offsets = self._model.com_estimate(encoded).double().cpu().numpy()
         if self._topple is not None:
-            # the table (z = 0 of the table frame) in each cloud's frame C, centred at its centroid
-            table = np.array([-c.centroid[2] for c in canon])
+            # the table under each object in its cloud's frame C, centred at its centroid
+            table = heights - np.array([c.centroid[2] for c in canon])
             desc = support_descriptors(sub, offsets, self._topple.inputs, table)
             features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []

@@ -178,3 +178,14 @@ def test_outline():
     assert len(outline_xy(np.array([[0, 0, 0], [1, 1, 0], [2, 2, 0.0]]))) == 5  # collinear: bounding box
     assert outline_xy(np.zeros((0, 3))).shape == (0, 2)
 
+
+
+def test_the_table_plane_gives_its_height_under_an_object():
+    """The perception node passes the fitted plane's height under each object to the Predictor."""
+    n = np.array([0.02, -0.01, 1.0])
+    n /= np.linalg.norm(n)
+    plane = TablePlane(n, -0.006 * n[2])  # 6 mm up at the origin, tilted about 1.3 deg
+    assert plane.height == pytest.approx(0.006)
+    for x, y in ((0.0, 0.0), (0.3, -0.2), (-0.5, 0.4)):
+        z = plane.height_at(x, y)
+        assert float(n @ np.array([x, y, z])) + plane.offset == pytest.approx(0.0, abs=1e-12)

@@ -130,7 +130,7 @@ def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
     far = (view[:, 0] < -0.099).sum() / (pts[:, 0] < -0.099).sum()
     assert len(view) < 0.6 * len(pts) and far < 0.2  # the -x face is not seen (its edge pixels leak)
     seen = support_descriptors(view[None], com[None], inputs=2)[0]
-    done = support_descriptors(view[None], com[None], inputs=3, table=np.array([table]))[0]
+    done = support_descriptors(view[None], com[None], inputs=4, table=np.array([table]))[0]
     reach = slice(3, 3 + SUPPORT_DIRECTIONS)
     tilt = slice(6 + SUPPORT_DIRECTIONS, None)
     assert np.abs(seen[reach] - whole[reach]).max() > 0.03  # the far corner's side of the base is missing
@@ -138,40 +138,45 @@ def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
     assert done[0] == pytest.approx(0.15, abs=1e-6) and done[1] == pytest.approx(0.3, abs=0.005)
     assert np.abs(done[tilt] - whole[tilt]).max() < 0.02 * whole[tilt].max()
     # a symmetric whole cloud on the table is unchanged by the completion (to the sampling's 1 mm asymmetry)
-    assert np.allclose(support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0], whole,
+    assert np.allclose(support_descriptors(pts[None], com[None], inputs=4, table=np.array([table]))[0], whole,
                        atol=1e-3)
 
 
-def test_version_3_descriptors_are_those_of_the_completed_cloud():
-    """support_descriptors of inputs version 3 reads the mirror images off the points (no 4x cloud is built):
-    on one-sided views they equal version 2's descriptors of completed_cloud; where the table lies below the
-    lowest point, all but the support polygon (whose band starts at the lowest point seen)."""
+def test_version_3_and_4_descriptors_are_those_of_the_completed_cloud():
+    """support_descriptors of inputs versions 3 and 4 read the mirror images off the points (no 4x cloud is
+    built): on one-sided views version 3's equal version 2's descriptors of completed_cloud whatever the table
+    under the view; version 4's too where the table is the lowest point, and all but the support polygon (whose
+    band starts at the lowest point seen) elsewhere."""
     rng = np.random.default_rng(0)
     polygon = slice(2, 3 + SUPPORT_DIRECTIONS)  # area and reach
     for _ in range(20):
         pts = np.asarray(trimesh.creation.box(extents=rng.uniform(0.05, 0.3, 3)).sample(1024))
         pts = pts[pts @ rng.normal(size=3) > -0.02]  # one side of it
         com = rng.normal(size=3) * 0.01
-        for table in (pts[:, 2].min(), pts[:, 2].min() - rng.uniform(0.0, 0.03), pts[:, 2].min() + 0.004):
-            fast = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
+        low = pts[:, 2].min()
+        for table in (low, low - rng.uniform(0.0, 0.03), low + 0.004):
             slow = support_descriptors(completed_cloud(pts, com, table)[None], com[None], inputs=2)[0]
-            same = np.ones(len(fast), dtype=bool)
-            if table < pts[:, 2].min():
+            v3 = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
+            assert np.allclose(v3, slow, rtol=0, atol=1e-12)
+            v4 = support_descriptors(pts[None], com[None], inputs=4, table=np.array([table]))[0]
+            same = np.ones(len(v4), dtype=bool)
+            if table != low:
                 same[polygon] = False
-            assert np.allclose(fast[same], slow[same], rtol=0, atol=1e-12)
+            assert np.allclose(v4[same], slow[same], rtol=0, atol=1e-12)
 
 
 def test_a_cloud_without_its_bottom_slice_keeps_its_support():
     """The perception node removes the points within 5 mm of the table plane: the base outline of a real cloud
-    lies a few mm up, and version 3 reads the support there (within SUPPORT_GAP_M of the table). A view that
+    lies a few mm up, and version 4 reads the support there (within SUPPORT_GAP_M of the table; version 3's
+    band from the table held the foot alone). A view that
     has not seen its support at all (a ball from 60 deg above: its lowest point 2.5 cm up) rests on the foot of
     its centre of mass alone."""
     box = trimesh.creation.box(extents=(0.1, 0.06, 0.1))
     pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
     com, table = np.zeros((1, 3)), np.array([-0.05])
-    whole = support_descriptors(pts[None], com, inputs=3, table=table)[0]
+    whole = support_descriptors(pts[None], com, inputs=4, table=table)[0]
     cut = pts[pts[:, 2] > table[0] + 0.005]
-    seen = support_descriptors(cut[None], com, inputs=3, table=table)[0]
+    seen = support_descriptors(cut[None], com, inputs=4, table=table)[0]
     reach = slice(3, 3 + SUPPORT_DIRECTIONS)
     assert whole[2] == pytest.approx(0.006, rel=0.1) and seen[2] == pytest.approx(whole[2], rel=0.15)
     assert np.abs(seen[reach] - whole[reach]).max() < 0.004
@@ -179,7 +184,7 @@ def test_a_cloud_without_its_bottom_slice_keeps_its_support():
     ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000)
     top = _view(ball, 30.0, 60.0)
     assert top[:, 2].min() > -0.05 + SUPPORT_GAP_M
-    alone = support_descriptors(top[None], np.zeros((1, 3)), inputs=3, table=np.array([-0.05]))[0]
+    alone = support_descriptors(top[None], np.zeros((1, 3)), inputs=4, table=np.array([-0.05]))[0]
     assert alone[2] < 1e-5 and np.abs(alone[reach]).max() < 0.0015  # a point, inflated by 1 mm
 
 
@@ -212,7 +217,7 @@ def test_a_version_1_head_reads_the_leading_columns():
 
     assert ModelConfig().topple_inputs == 1
     with pytest.raises(ValueError, match="topple_inputs must be one of"):
-        ModelConfig(topple_inputs=4)
+        ModelConfig(topple_inputs=5)
     old, new = ToppleHead(8, 16, 2, inputs=1), ToppleHead(8, 16, 2, inputs=2)
     assert DESCRIPTOR_DIMS[2] == DESCRIPTOR_DIM and PUSH_DIMS[2] == PUSH_DIM  # version 3: version 2's columns
     assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIM
@@ -347,7 +352,7 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
     src, out = fitted
     model, ckpt = load_model(out)
     assert model.topple is not None and len(model.topple.members) == 2
-    assert model.topple.inputs == 3 and ckpt["config"]["model"]["topple_inputs"] == 3  # the completed cloud
+    assert model.topple.inputs == 4 and ckpt["config"]["model"]["topple_inputs"] == 4  # the completed cloud
     assert ckpt["config"]["topple_fit"]["feature_dropout"] == 0.5
     assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
     assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
@@ -399,6 +404,30 @@ def test_the_predictor_rests_a_view_on_the_table_of_its_frame(fitted):
     h = pred._dynamics_dim  # descriptor 0: the centre of mass's height over the support
     assert on_table.feature[h] - lifted.feature[h] == pytest.approx(low, abs=1e-5)
     assert np.array_equal(on_table.feature[:h], lifted.feature[:h])  # the learned feature does not move
+
+
+def test_the_predictor_counts_the_support_from_the_plane_perception_found(fitted):
+    """The perception node fits the table plane (up to plane_max_offset off z = 0) and removes the points within
+    5 mm of it; it passes the plane's height under each object to encode_many. A box on a plane 8 mm up, its
+    bottom 5 mm removed, keeps its support polygon that way; taken on z = 0 its lowest point lies 1.3 cm up, an
+    unseen support (the foot alone)."""
+    from physdyn_ros.predictor import Predictor
+
+    pred = Predictor.load(fitted[1])
+    h = pred._dynamics_dim
+    box = trimesh.creation.box(extents=(0.1, 0.06, 0.1))
+    pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)]) + [0.2, 0.1, 0.05 + 0.008]
+    cut = pts[pts[:, 2] > 0.008 + 0.005]
+    whole, on_plane = pred.encode(pts, 0.008), pred.encode(cut, table_height=0.008)
+    on_zero = pred.encode(cut)
+    area = h + 2
+    assert whole.feature[area] > 0.004 and on_plane.feature[area] == pytest.approx(whole.feature[area], rel=0.2)
+    assert on_zero.feature[area] < 1e-4
+    assert on_zero.feature[h] - on_plane.feature[h] == pytest.approx(0.008, abs=1e-6)  # heights from the plane
+    with pytest.raises(ValueError, match="table_heights must be one finite height"):
+        pred.encode_many([pts, cut], [0.0])
+    with pytest.raises(ValueError, match="table_heights must be one finite height"):
+        pred.encode(pts, float("nan"))
 
 
 def test_the_head_keeps_the_predictor_equivariant_to_yaw(fitted):

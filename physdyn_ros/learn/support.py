@@ -19,10 +19,13 @@ support) and its convex surface (the tilt barriers) described only the near side
 object rests on the table (z = table, known in the table frame) with its centre of mass over the support, and
 most objects are mirror-symmetric about the vertical planes through their centre of mass along their principal
 axes (boxes, cans, bottles, mugs, chairs): the mirror images of the seen side through those planes (frame C's
-x axis is the cloud's principal axis) cover the hidden one. The support band still starts at the lowest point
-seen where that lies within SUPPORT_GAP_M of the table: the perception node removes the points within 5 mm of
-the table plane, so a real cloud's base outline lies a few mm up; a view whose lowest point is higher (a ball
-seen from above) has not seen its support, and the centre of mass's foot alone stands for it.
+x axis is the cloud's principal axis) cover the hidden one. Its support band starts at the table.
+
+Inputs version 4 (VIEW, as perception delivers) starts the support band at the lowest point seen where that
+lies within SUPPORT_GAP_M of the table: the perception node removes the points within 5 mm of the table plane,
+so a real cloud's base outline lies a few mm up (version 3's band then held the centre of mass's foot alone); a
+view whose lowest point is higher (a ball seen from above) has not seen its support, and the band from the
+foot holds it (and, for an object over 33 cm tall, whose band is 3 % of its height, the points within that).
 """
 from __future__ import annotations
 
@@ -38,17 +41,17 @@ from ..conventions import GRAVITY, TOPPLE_ANGLE
 SUPPORT_DIRECTIONS = 16
 #: Tilt angles (rad, 0 to the topple angle) at which the centre of mass height is measured for the tilt barrier.
 TILT_ANGLES = np.linspace(0.0, TOPPLE_ANGLE, 10)  # conventions: rad
-#: Inputs versions of the topple head: 1 (session 8), 2 (+ tilt barriers), 3 (2 on the completed cloud); the
-#: current one.
-INPUTS_VERSIONS = (1, 2, 3)
-INPUTS_VERSION = 3
+#: Inputs versions of the topple head: 1 (session 8), 2 (+ tilt barriers), 3 (2 on the completed cloud, the
+#: support band from the table), 4 (3 with the band from the lowest point seen near the table); the current one.
+INPUTS_VERSIONS = (1, 2, 3, 4)
+INPUTS_VERSION = 4
 #: Per-object descriptors, by inputs version: centre-of-mass height over the lowest point, height, area of the
 #: support polygon, the polygon's reach in each direction, the cloud's second moments about the centre of mass
-#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); version 3: version 2's on the
-#: completed cloud, whose lowest point is the table.
-DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, 2: 3 + 2 * SUPPORT_DIRECTIONS + 3, 3: 3 + 2 * SUPPORT_DIRECTIONS + 3}
+#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); versions 3 and 4: version 2's on
+#: the completed cloud, heights from the table (the support band: completed_cloud).
+DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, **{v: 3 + 2 * SUPPORT_DIRECTIONS + 3 for v in (2, 3, 4)}}
 #: Per-push quantities derived from the descriptors and the initial twist (push_quantities), by inputs version.
-PUSH_DIMS = {1: 6 + 12, 2: 6 + 12 + 4, 3: 6 + 12 + 4}
+PUSH_DIMS = {1: 6 + 12, **{v: 6 + 12 + 4 for v in (2, 3, 4)}}
 DESCRIPTOR_DIM = DESCRIPTOR_DIMS[INPUTS_VERSION]
 PUSH_DIM = PUSH_DIMS[INPUTS_VERSION]
 #: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.
@@ -60,7 +63,7 @@ _INFLATE = 0.001  # m: a support seen as a line or a point becomes a thin polygo
 #: stands in for it. A camera 70 deg above a ball (the steepest view in training) sees down to 0.33 of its height.
 TABLE_GAP_REL = 0.5
 TABLE_ABOVE_M = 0.005
-#: Version 3: the support band starts at the lowest point when that lies within this of the table (the perception
+#: Version 4: the support band starts at the lowest point when that lies within this of the table (the perception
 #: node's plane_distance of 5 mm, sensor noise, a sampled round bottom), else the support is unseen.
 SUPPORT_GAP_M = 0.01
 
@@ -145,8 +148,9 @@ def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = N
     images through the vertical planes x = com_x and y = com_y and through both (the point reflection about the
     vertical axis of the centre of mass `com` (3,)), and the centre of mass's foot on the table (height
     `table`, resting_table), which lies inside the support polygon of an object at rest. support_descriptors
-    of inputs version 3 are version 2's of this cloud (computed without building it), except that the support
-    band starts at the lowest point of `points` where that lies within SUPPORT_GAP_M of the table."""
+    of inputs version 3 are version 2's of this cloud (computed without building it); version 4's too, except
+    that the support band starts at the lowest point of `points` where that lies within SUPPORT_GAP_M of the
+    table."""
     pts = np.asarray(points, dtype=np.float64)
     c = np.asarray(com, dtype=np.float64)
     foot = np.array([[c[0], c[1], resting_table(pts[:, 2], table)]])
@@ -157,7 +161,7 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS
                         table: np.ndarray | None = None) -> np.ndarray:
     """(B, DESCRIPTOR_DIMS[inputs]) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of
     mass com (B, 3) in the same frame, for a topple head of inputs version `inputs`. table (B,): the height of
-    the table plane in the same frame (version 3; None: each cloud's lowest point)."""
+    the table plane in the same frame (versions 3 and 4; None: each cloud's lowest point)."""
     if inputs not in INPUTS_VERSIONS:
         raise ValueError(f"inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
     cloud = np.asarray(cloud, dtype=np.float64)
@@ -175,14 +179,19 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS
         z0 = lowest = float(z.min())
         top = float(z.max())
         foot = np.array([c[0], c[1], resting_table(z, tables[i])])
-        if inputs >= 3:  # the completed cloud (completed_cloud): its images share the points' heights
+        if inputs == 3:  # version 3 (as first fitted): the band from the table, the foot where within it
+            z0 = lowest = min(z0, float(foot[2]))
+        elif inputs >= 4:  # the completed cloud (completed_cloud): its images share the points' heights
             z0, top = min(z0, float(foot[2])), max(top, float(foot[2]))
             if lowest - foot[2] > SUPPORT_GAP_M:  # the support was not seen: the foot alone
                 lowest = float(foot[2])
         height = top - z0
-        base = pts[z < lowest + max(BASE_BAND_M, BASE_BAND_REL * height)]
+        band = lowest + max(BASE_BAND_M, BASE_BAND_REL * height)
+        base = pts[z < band]
         if inputs >= 3:  # the foot lies inside the support of an object at rest
             base = np.concatenate([_mirror_images(base, c), foot[None]])
+            if inputs == 3:
+                base = base[base[:, 2] < band]
         reach, area = _support_reach(base[:, :2], c[:2], dirs)
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach

@@ -261,7 +261,10 @@ class PerceptionNode(ManagedNode):
         else:
             labelled = list(zip(self.tracker.update(centroids, t), scene.objects))
         features = []
-        codes = self.predictor.encode_many([obj.points for _, obj in labelled])  # one encoder pass for all
+        # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
+        plane = scene.plane
+        heights = [plane.height_at(*obj.centroid[:2]) if plane is not None else 0.0 for _, obj in labelled]
+        codes = self.predictor.encode_many([obj.points for _, obj in labelled], heights)  # one encoder pass
         for (object_id, obj), code in zip(labelled, codes):
             features.append(ShapeFeature(
                 header=header, object_id=object_id, model_id=self.predictor.model_id,

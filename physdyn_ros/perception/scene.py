@@ -96,6 +96,10 @@ class TablePlane:
         """z of the plane at the table frame's origin, m."""
         return -self.offset / float(self.normal[2])
 
+    def height_at(self, x: float, y: float) -> float:
+        """z of the plane at (x, y) of the table frame, m."""
+        return -(self.offset + float(self.normal[0]) * x + float(self.normal[1]) * y) / float(self.normal[2])
+
     @property
     def tilt(self) -> float:
         """Angle between the plane's normal and z, degrees."""
