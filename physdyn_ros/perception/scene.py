@@ -94,7 +94,7 @@ class TablePlane:
     @property
     def height(self) -> float:
         """z of the plane at the table frame's origin, m."""
-        return -self.offset / float(self.normal[2])
+        return self.height_at(0.0, 0.0)
 
     def height_at(self, x: float, y: float) -> float:
         """z of the plane at (x, y) of the table frame, m."""
