@@ -143,6 +143,11 @@ def _mirror_images(points: np.ndarray, com: np.ndarray) -> np.ndarray:
     return (com + (points - com)[None] * _FLIPS[:, None]).reshape(-1, 3)
 
 
+def _foot(com: np.ndarray, z: np.ndarray, table: float | None) -> np.ndarray:
+    """(3,) the centre of mass's foot on the plane the object of point heights `z` rests on (resting_table)."""
+    return np.array([com[0], com[1], resting_table(z, table)])
+
+
 def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = None) -> np.ndarray:
     """(4N + 1, 3) the points (N, 3) (frame C, z up) with what a single view misses of the support: their mirror
     images through the vertical planes x = com_x and y = com_y and through both (the point reflection about the
@@ -153,8 +158,7 @@ def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = N
     table."""
     pts = np.asarray(points, dtype=np.float64)
     c = np.asarray(com, dtype=np.float64)
-    foot = np.array([[c[0], c[1], resting_table(pts[:, 2], table)]])
-    return np.concatenate([_mirror_images(pts, c), foot])
+    return np.concatenate([_mirror_images(pts, c), _foot(c, pts[:, 2], table)[None]])
 
 
 def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS_VERSION,
@@ -178,7 +182,7 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS
         z = pts[:, 2]
         z0 = lowest = float(z.min())
         top = float(z.max())
-        foot = np.array([c[0], c[1], resting_table(z, tables[i])])
+        foot = _foot(c, z, tables[i])
         if inputs == 3:  # version 3 (as first fitted): the band from the table, the foot where within it
             z0 = lowest = min(z0, float(foot[2]))
         elif inputs >= 4:  # the completed cloud (completed_cloud): its images share the points' heights
