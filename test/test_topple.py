@@ -498,6 +498,36 @@ def test_evaluation_applies_the_head_as_the_predictor_does(fitted):
     assert np.allclose(traj.topple_prob.max(axis=1)[~tilted], head[~tilted], atol=1e-5)
 
 
+def test_training_pushes_are_dealt_over_datasets_in_proportion():
+    from physdyn_ros.learn.topple_fit import _shares
+
+    assert _shares([300], 100) == [100] and _shares([80], 100) == [80]
+    assert _shares([300, 100], 100) == [75, 25]
+    assert _shares([2, 1, 1], 3) == [1, 1, 1] and _shares([5, 3, 2], 7) == [4, 2, 1]
+    assert _shares([50, 30], 1000) == [50, 30]  # never more than a dataset holds
+
+
+def test_fit_topple_draws_from_several_datasets_and_takes_whole_or_partial_views_only(tmp_path):
+    """--data repeated: the training pushes come from every dataset (here the tiny one twice: more pushes than
+    one holds), each dataset recorded; --partial 0 or 1 (one kind of cloud only) fits instead of failing on an
+    empty set of views."""
+    from physdyn_ros.learn import topple_fit
+    from physdyn_ros.learn.checkpoint import load_checkpoint
+    from physdyn_ros.learn.windows import load_sims
+
+    one = len(load_sims(tiny_dataset(), ["train"]))
+    src = random_checkpoint(tmp_path / "src.pt")
+    for partial in (0.0, 1.0):
+        out = tmp_path / f"two{partial}.pt"
+        args = argparse.Namespace(checkpoint=str(src), data=[str(tiny_dataset())] * 2, out=str(out),
+                                  max_train=2 * one, partial=partial, epochs=1, members=1, seed=0, threads=1,
+                                  family_folds=0, feature_dropout=0.5)
+        assert topple_fit.run(args) == 0
+        fit = load_checkpoint(out)["config"]["topple_fit"]
+        assert fit["validation"]["train_pushes"] == 2 * one
+        assert fit["data"] == [str(tiny_dataset().resolve())] * 2
+
+
 def test_fit_topple_refuses_bad_arguments(tmp_path):
     from physdyn_ros.learn import topple_fit
 

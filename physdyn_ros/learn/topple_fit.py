@@ -10,7 +10,7 @@ import argparse
 import copy
 import time
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
@@ -163,11 +163,35 @@ def fit_calibration(prob: np.ndarray, label: np.ndarray, iterations: int = 50) -
     return float(theta[0]), float(theta[1])
 
 
-def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, max_train: int = 24000,
+def _pushes(model: DynamicsModel, sims: SimArrays, n: int, partial: float, noise: float, rng: np.random.Generator,
+            seed: int) -> dict[str, np.ndarray]:
+    """Inputs of n simulations drawn from `sims`, a `partial` fraction of them seen as one camera's view."""
+    index = np.sort(rng.choice(len(sims), n, replace=False))
+    parted = rng.permutation(n)[:int(round(partial * n))]
+    full_rows = np.setdiff1d(np.arange(n), parted)
+    parts = [(index[full_rows], 0.0, seed), (np.sort(index[parted]), 1.0, seed + 1)]
+    return _join(*(topple_inputs(model, sims, idx, view, noise, s) for idx, view, s in parts if len(idx)))
+
+
+def _shares(sizes: Sequence[int], total: int) -> list[int]:
+    """`total` dealt over datasets of `sizes` in proportion (largest remainders), none above its size."""
+    total = min(total, int(sum(sizes)))
+    exact = np.asarray(sizes, dtype=np.float64) * total / max(sum(sizes), 1)
+    share = np.floor(exact).astype(int)
+    for k in np.argsort(-(exact - share))[:total - int(share.sum())]:
+        share[k] += 1
+    return [int(min(s, n)) for s, n in zip(share, sizes)]
+
+
+def fit_topple_head(model: DynamicsModel, train: SimArrays | Sequence[SimArrays],
+                    val: SimArrays | Sequence[SimArrays], *, max_train: int = 24000,
                     partial: float = 1.0 / 3.0, noise: float = 0.002, epochs: int = 120, batch_size: int = 512,
                     lr: float = 3e-3, weight_decay: float = 1e-3, seed: int = 0, family_folds: int = 0,
                     feature_dropout: float = 0.0, log: Optional[Callable[[str], None]] = print) -> dict[str, Any]:
     """Fit model.topple (a ToppleHead) in place; returns validation scores. The rest of the model is frozen.
+
+    train, val: one dataset's splits or several datasets' (their training pushes drawn in proportion to their
+    sizes, max_train in all; every validation push).
 
     family_folds > 1: before the final fit, leave-families-out cross-validation (cross_validate) gives every
     training push a probability from a head that never saw its family; the head's calibration is the Platt
@@ -179,18 +203,16 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays, val: SimArrays, *, m
     if not isinstance(head, ToppleHead):
         raise ValueError("the model has no topple head (model.topple_head: true)")
     t0 = time.time()
+    trains = [train] if isinstance(train, SimArrays) else list(train)
+    vals = [val] if isinstance(val, SimArrays) else list(val)
     rng = np.random.default_rng(seed)
-    n = min(max_train, len(train))
-    index = np.sort(rng.choice(len(train), n, replace=False))
-    n_part = int(round(partial * n))
-    parted = rng.permutation(n)[:n_part]
-    full_rows = np.setdiff1d(np.arange(n), parted)
     model.eval()
-    data = _join(topple_inputs(model, train, index[full_rows], 0.0, noise, seed),
-                 topple_inputs(model, train, np.sort(index[parted]), 1.0, noise, seed + 1))
-    vidx = np.arange(len(val))
-    vdata = _join(topple_inputs(model, val, vidx, 0.0, noise, seed + 2),
-                  topple_inputs(model, val, vidx, 1.0, noise, seed + 3))
+    # dataset k's view seeds are offset by 10 k: one dataset draws exactly as before several were allowed
+    data = _join(*(_pushes(model, sims, n, partial, noise, rng, seed + 10 * k)
+                   for k, (sims, n) in enumerate(zip(trains, _shares([len(t) for t in trains], max_train)))))
+    vdata = _join(*(_join(topple_inputs(model, v, np.arange(len(v)), 0.0, noise, seed + 10 * k + 2),
+                          topple_inputs(model, v, np.arange(len(v)), 1.0, noise, seed + 10 * k + 3))
+                    for k, v in enumerate(vals)))
     if log:
         log(f"topple head: {len(data['label'])} training pushes ({data['label'].mean():.1%} toppled), "
             f"{len(vdata['label'])} validation, inputs in {time.time() - t0:.0f} s")
@@ -230,7 +252,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.description = ("Fit the whole-push topple head of a trained checkpoint on its frozen shape features "
                           "and write a new inference checkpoint (a new model_id).")
     parser.add_argument("--checkpoint", required=True, help="trained checkpoint (its dynamics stay unchanged)")
-    parser.add_argument("--data", required=True, help="dataset directory (its train and val splits)")
+    parser.add_argument("--data", required=True, action="append",
+                        help="dataset directory (its train and val splits); repeat to fit on several datasets")
     parser.add_argument("--out", required=True, help="the new checkpoint file")
     parser.add_argument("--max-train", type=int, default=24000, help="training simulations used (default 24000)")
     parser.add_argument("--partial", type=float, default=1.0 / 3.0,
@@ -275,11 +298,14 @@ def run(args: argparse.Namespace) -> int:
     folds = int(getattr(args, "family_folds", 0))
     if folds == 1 or folds < 0:
         raise ValueError(f"--family-folds must be 0 (no calibration) or at least 2, got {folds}")
-    train, val = load_sims(args.data, ["train"]), load_sims(args.data, ["val"])
+    datas = [args.data] if isinstance(args.data, str) else list(args.data)
+    train = [load_sims(d, ["train"]) for d in datas]
+    val = [load_sims(d, ["val"]) for d in datas]
     result = fit_topple_head(model, train, val, max_train=args.max_train, partial=args.partial,
                              epochs=args.epochs, seed=args.seed, family_folds=folds,
                              feature_dropout=args.feature_dropout)
-    config["topple_fit"] = {"source": ckpt["model_id"], "data": str(Path(args.data).resolve()),
+    resolved = [str(Path(d).resolve()) for d in datas]
+    config["topple_fit"] = {"source": ckpt["model_id"], "data": resolved[0] if len(resolved) == 1 else resolved,
                             "max_train": args.max_train, "partial": args.partial, "epochs": args.epochs,
                             "members": args.members, "seed": args.seed, "family_folds": folds,
                             "feature_dropout": args.feature_dropout, "inputs": INPUTS_VERSION,
