@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from . import geometry as geo
 from .conventions import DT
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
-from .learn.support import support_descriptors
+from .learn.support import descriptor_points, support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -206,7 +206,7 @@ class Predictor:
         self.feature_dim: int = self._dynamics_dim + (self._topple.desc_dim if self._topple is not None else 0)
         self.max_horizon: int = int(model.cfg.max_horizon)
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
-        self._subsets: dict[int, np.ndarray] = {}
+        self._subsets: dict[tuple[int, int], np.ndarray] = {}
 
     @property
     def estimates_com(self) -> bool:
@@ -250,15 +250,17 @@ class Predictor:
             self.rollout(code, (0.5, 0.1, 0.0), (0.0, 0.0, 1.0), horizon=min(60, self.max_horizon))
 
     # ----------------------------------------------------------------------------------------------- encode
-    def _subset(self, n: int) -> np.ndarray:
-        if n not in self._subsets:
+    def _subset(self, n: int, wanted: int = 0) -> np.ndarray:
+        """The fixed subset of `wanted` (default num_points) of n points, as training's (windows.make_windows)."""
+        wanted = wanted or self.num_points
+        if (n, wanted) not in self._subsets:
             gen = np.random.default_rng(0)
-            if n >= self.num_points:
-                idx = np.sort(gen.permutation(n)[:self.num_points])
-            else:  # repeat points: max pooling is unchanged by duplicates
-                idx = np.concatenate([np.arange(n), gen.integers(0, n, self.num_points - n)])
-            self._subsets[n] = idx
-        return self._subsets[n]
+            if n >= wanted:
+                idx = np.sort(gen.permutation(n)[:wanted])
+            else:  # repeat points: max pooling (and a hull, an extreme) is unchanged by duplicates
+                idx = np.concatenate([np.arange(n), gen.integers(0, n, wanted - n)])
+            self._subsets[(n, wanted)] = idx
+        return self._subsets[(n, wanted)]
 
     def encode(self, cloud: Any, table_height: float = 0.0) -> ShapeCode:
         """Shape code of a cloud (N, 3) in the table frame (any N; resampled to num_points, centred).
@@ -292,7 +294,9 @@ class Predictor:
         if self._topple is not None:
             # the table under each object in its cloud's frame C, centred at its centroid
             table = heights - np.array([c.centroid[2] for c in canon])
-            desc = support_descriptors(sub, offsets, self._topple.inputs, table)
+            dense = descriptor_points(self._topple.inputs)
+            points = sub if not dense else np.stack([loc[self._subset(len(p), dense)] for loc, p in zip(local, pts)])
+            desc = support_descriptors(points, offsets, self._topple.inputs, table)
             features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []
         for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):

@@ -70,7 +70,7 @@ def test_push_quantities_follow_the_tipping_barrier():
     desc[0, 3 + SUPPORT_DIRECTIONS:6 + SUPPORT_DIRECTIONS] = 0.001
     desc[0, 6 + SUPPORT_DIRECTIONS:] = np.where(np.arange(SUPPORT_DIRECTIONS) == 0, 0.02, 0.3)  # low barrier at +x
     q = push_quantities(desc, np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)))[0]
-    assert q.shape == (PUSH_DIM,)
+    assert q.shape == (PUSH_DIMS[5],)  # every version's columns; a head reads its leading ones
     speed, front, barrier, kinetic = q[6], q[9], q[13], q[14]
     assert speed == pytest.approx(1.0) and front == pytest.approx(0.05)
     assert barrier == pytest.approx(GRAVITY * (math.hypot(0.1, 0.05) - 0.1))
@@ -84,6 +84,27 @@ def test_push_quantities_follow_the_tipping_barrier():
         support_descriptors(np.zeros((2, 10, 3)), np.zeros((1, 3)))
     with pytest.raises(ValueError, match="descriptors must be"):
         push_quantities(desc[:, :30], np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+def test_version_5_weighs_each_direction_of_an_oblique_push_against_its_barrier():
+    """A bar on round weights (a dumbbell lying across y) rolls toward +-y with no barrier and tips over an end
+    toward +-x: a push mostly along x with a small y component rolls it. Version 4's columns see only the steep
+    barrier ahead; version 5's find the roll (the energy toward +y against its barrier) and leave version 4's
+    columns as they were."""
+    desc = np.zeros((2, DESCRIPTOR_DIM))
+    desc[:, 0], desc[:, 3:3 + SUPPORT_DIRECTIONS] = 0.05, 0.03
+    tilt = np.full(SUPPORT_DIRECTIONS, 0.3)
+    tilt[[SUPPORT_DIRECTIONS // 4, 3 * SUPPORT_DIRECTIONS // 4]] = 0.003  # +y and -y
+    desc[:, 6 + SUPPORT_DIRECTIONS:] = tilt
+    q = push_quantities(desc, np.array([[1.0, 0.2, 0.0], [1.0, 0.0, 0.0]]), np.zeros((2, 3)))
+    assert q.shape == (2, PUSH_DIMS[5]) and PUSH_DIMS[4] == PUSH_DIMS[5] - 4
+    ratio, barrier, energy, cosine = q[0, PUSH_DIMS[4]:]
+    assert barrier == pytest.approx(0.003) and energy == pytest.approx(0.5 * 0.2 ** 2)
+    assert ratio == pytest.approx(math.log((0.02 + 1e-6) / (0.003 + 1e-6)))
+    assert cosine == pytest.approx(0.2 / math.hypot(1.0, 0.2))
+    assert q[0, 18] == pytest.approx(0.3)  # version 4's barrier ahead: the steep one
+    straight = q[1, PUSH_DIMS[4]:]  # straight along x: no energy toward y, the barrier ahead decides
+    assert straight[1] == pytest.approx(0.3) and straight[3] == pytest.approx(1.0)
 
 
 def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
@@ -217,10 +238,10 @@ def test_a_version_1_head_reads_the_leading_columns():
 
     assert ModelConfig().topple_inputs == 1
     with pytest.raises(ValueError, match="topple_inputs must be one of"):
-        ModelConfig(topple_inputs=5)
+        ModelConfig(topple_inputs=7)
     old, new = ToppleHead(8, 16, 2, inputs=1), ToppleHead(8, 16, 2, inputs=2)
-    assert DESCRIPTOR_DIMS[2] == DESCRIPTOR_DIM and PUSH_DIMS[2] == PUSH_DIM  # version 3: version 2's columns
-    assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIM
+    assert DESCRIPTOR_DIMS[2] == DESCRIPTOR_DIM and PUSH_DIMS[2] == PUSH_DIMS[4] == PUSH_DIM - 4  # versions 3, 4: 2's
+    assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIMS[2]
     rng = np.random.default_rng(0)
     feature = rng.normal(size=(3, 8))
     box = _surface(trimesh.creation.box(extents=(0.1, 0.2, 0.3)))
@@ -281,6 +302,20 @@ def fitted(tmp_path_factory):
     return src, out
 
 
+@pytest.fixture(scope="module")
+def calm(fitted):
+    """`fitted` with its calibration shifted down by 1.5 on the logit: the tiny head (100 pushes of a random-weight
+    model) has no sense of scale, and the rules' tests need pushes of a tall box on both sides of 0.5."""
+    from physdyn_ros.learn.checkpoint import load_model, save_checkpoint
+
+    model, ckpt = load_model(fitted[1])
+    model.topple.calibration[1] -= 1.5
+    out = fitted[1].with_name("calm.pt")
+    save_checkpoint(out, model=model.eval(), config=ckpt["config"], dataset=ckpt.get("dataset", {}), progress=None,
+                    include_rng=False)
+    return fitted[0], out
+
+
 def test_fit_topple_calibrates_the_head_on_families_it_left_out(fitted):
     """--family-folds: every training push is predicted by a head fitted without its family; the Platt scaling
     of those predictions is the head's calibration, stored with it and reported in the checkpoint."""
@@ -294,6 +329,10 @@ def test_fit_topple_calibrates_the_head_on_families_it_left_out(fitted):
     assert cal != [1.0, 0.0]
     for key in ("out_of_family_raw", "out_of_family"):
         assert fit["validation"][key]["n"] == fit["validation"]["train_pushes"]  # every training push, once
+    by_family = fit["validation"]["out_of_family_by_family"]
+    assert sorted(by_family) == ["bottle", "box", "cylinder"]  # the tiny dataset's families, each left out once
+    assert sum(v["n"] for v in by_family.values()) == fit["validation"]["train_pushes"]
+    assert sum(v["toppled"] for v in by_family.values()) == fit["validation"]["out_of_family"]["toppled"]
 
 
 def test_platt_scaling_recovers_a_known_miscalibration():
@@ -345,14 +384,14 @@ def test_a_head_saved_before_the_calibration_loads_with_the_identity(fitted):
     assert torch.equal(head.calibrated(p), p)  # the identity leaves probabilities bit for bit
 
 
-def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(fitted):
+def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(calm):
     from physdyn_ros.learn.checkpoint import load_model
     from physdyn_ros.predictor import Predictor
 
-    src, out = fitted
+    src, out = calm
     model, ckpt = load_model(out)
     assert model.topple is not None and len(model.topple.members) == 2
-    assert model.topple.inputs == 4 and ckpt["config"]["model"]["topple_inputs"] == 4  # the completed cloud
+    assert model.topple.inputs == 6 and ckpt["config"]["model"]["topple_inputs"] == 6  # the current version
     assert ckpt["config"]["topple_fit"]["feature_dropout"] == 0.5
     assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
     assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
@@ -393,12 +432,13 @@ def test_the_predictor_rests_a_view_on_the_table_of_its_frame(fitted):
     """A camera 60 deg above a ball on the table sees down to a quarter of its height: the topple head's centre
     of mass height counts from the table (z = 0 of the table frame), not from the lowest point seen. The same
     view 0.5 m above the table (a cloud given in another frame) counts from its lowest point."""
+    from physdyn_ros.learn.support import descriptor_points
     from physdyn_ros.predictor import Predictor
 
     pred = Predictor.load(fitted[1])
     ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000) + [0.3, 0.1, 0.05]
     view = _view(ball, 30.0, 60.0)
-    low = float(view[pred._subset(len(view)), 2].min())  # of the points the model reads
+    low = float(view[pred._subset(len(view), descriptor_points(6)), 2].min())  # of the points the head reads
     assert 0.015 < low < 0.045  # the lowest point seen is cm above the table
     on_table, lifted = pred.encode(view), pred.encode(view + [0.0, 0.0, 0.5])
     h = pred._dynamics_dim  # descriptor 0: the centre of mass's height over the support
@@ -623,11 +663,11 @@ def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
             assert np.allclose(getattr(short, name), getattr(full, name)[:, :h + 1], atol=1e-9), (h, name)
 
 
-def test_a_planner_roll_out_ends_at_the_whole_push_probability(fitted):
+def test_a_planner_roll_out_ends_at_the_whole_push_probability(calm):
     """head_timing=False (the planner's search): only `horizon` steps are rolled out and their maximum is the
     head's whole-push probability (a push that topples after the search horizon still counts); the motion is
     the full roll-out's prefix."""
-    pred, code, v, w, full = _tall_box_pushes(fitted, seed=9)
+    pred, code, v, w, full = _tall_box_pushes(calm, seed=9)
     short = pred.rollout_batch(code, v, w, 12, head_timing=False)
     assert short.positions.shape[1] == 13
     calm = full.topple_probability <= 0.5  # no tilt either way: the same motion
@@ -655,3 +695,64 @@ def test_a_model_with_a_fitted_head_can_be_fine_tuned(fitted, tmp_path, capsys):
     assert not any(k.startswith("topple.") for k in after)
     for k, w in after.items():  # the dynamics weights are the init's (a negligible learning rate; another seed
         assert torch.allclose(w.float(), before[k].float(), atol=1e-5), k  # than the init's, so not a fresh init)
+
+
+@pytest.fixture(scope="module")
+def fitted_dense(tmp_path_factory):
+    """A tiny model whose topple head (inputs version 6) reads descriptors of 1024 points of the cloud."""
+    from physdyn_ros.learn import topple_fit
+
+    tmp = tmp_path_factory.mktemp("topple6")
+    out = tmp / "dense.pt"
+    args = argparse.Namespace(checkpoint=str(random_checkpoint(tmp / "src.pt")), data=str(tiny_dataset()),
+                              out=str(out), max_train=100, partial=0.5, epochs=1, members=1, seed=0, threads=1,
+                              family_folds=0, feature_dropout=0.5, inputs=6)
+    assert topple_fit.run(args) == 0
+    return out
+
+
+def test_dense_descriptors_come_from_the_same_cloud_in_the_same_frame():
+    """desc_points: a fixed subset of the same (posed, viewed) cloud in the same frame C; the encoder's cloud is
+    unchanged by asking for it, and holds a subset of its points when it asks for all of them."""
+    from physdyn_ros.learn.windows import load_sims, sequences
+
+    sims = load_sims(tiny_dataset(), ["test"])
+    index = np.arange(min(12, len(sims)))
+    plain = sequences(sims, 1, 128, index, 0.5, 0.002, view_seed=5)
+    dense = sequences(sims, 1, 128, index, 0.5, 0.002, view_seed=5, desc_points=sims.points.shape[1])
+    assert "desc_cloud" not in plain and dense["desc_cloud"].shape == (len(index), sims.points.shape[1], 3)
+    assert torch.equal(plain["cloud"], dense["cloud"]) and torch.equal(plain["heading"], dense["heading"])
+    gap = torch.cdist(dense["cloud"].double(), dense["desc_cloud"].double()).min(dim=2).values
+    assert float(gap.max()) < 1e-6
+
+
+def test_a_dense_head_reads_the_same_descriptors_in_the_predictor_and_in_evaluation(fitted_dense):
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.evaluate import model_rollouts
+    from physdyn_ros.learn.support import descriptor_points
+    from physdyn_ros.learn.topple_fit import topple_inputs
+    from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros.predictor import Predictor
+
+    model, ckpt = load_model(fitted_dense)
+    assert model.topple.inputs == 6 and ckpt["config"]["topple_fit"]["inputs"] == 6
+    assert descriptor_points(6) == 1024 and descriptor_points(4) == 0
+    sims = load_sims(tiny_dataset(), ["test"])
+    index = np.arange(min(20, len(sims)))
+    traj = model_rollouts(model, sims, index, 60)
+    data = topple_inputs(model, sims, index, 0.0)
+    with torch.inference_mode():
+        head = model.topple(*(torch.from_numpy(data[k]).float() for k in ("feature", "desc", "push"))).numpy()
+    tilted = rules.tilted_past(traj.quat).any(axis=1)
+    assert np.allclose(traj.topple_prob.max(axis=1)[~tilted], head[~tilted], atol=1e-5)
+    # the Predictor, given a simulation's cloud where it stands, reads the descriptors training read (1024
+    # points), not those of the encoder's 128
+    from physdyn_ros.learn import frames
+
+    pred = Predictor.load(fitted_dense)
+    for i in index[:4]:
+        world = frames.pose_cloud(sims.points[sims.shape_index[i]], sims.scale[i], sims.quat[i, 0]) + sims.pos[i, 0]
+        desc = pred.encode(world, table_height=0.0).feature[pred._dynamics_dim:]
+        assert np.allclose(desc, data["desc"][i], rtol=1e-4, atol=1e-5)
+        sparse = pred.encode(world[pred._subset(len(world))]).feature[pred._dynamics_dim:]
+        assert not np.allclose(sparse, data["desc"][i], rtol=1e-4, atol=1e-5)

@@ -17,7 +17,7 @@ import torch
 
 from .evaluate import _fmt, calibration, topple_scores
 from .model import DynamicsModel
-from .support import INPUTS_VERSION, push_quantities, support_descriptors
+from .support import INPUTS_VERSION, INPUTS_VERSIONS, descriptor_points, push_quantities, sequence_descriptors
 from .topple import ToppleHead, apply_calibration
 from .windows import SimArrays, sequences
 
@@ -30,11 +30,11 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
     parts: dict[str, list[np.ndarray]] = {"feature": [], "desc": [], "push": [], "label": [], "category": []}
     for start in range(0, len(index), batch_size):
         idx = index[start:start + batch_size]
-        seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start)
-        feature = model.encode(seq["cloud"])
         inputs = model.topple.inputs if model.topple is not None else INPUTS_VERSION
-        desc = support_descriptors(seq["cloud"].numpy(), model.com_estimate(feature).numpy(), inputs,
-                                   seq["table"].numpy())
+        seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start,
+                        desc_points=descriptor_points(inputs))
+        feature = model.encode(seq["cloud"])
+        desc = sequence_descriptors(seq, model.com_estimate(feature).numpy(), inputs)
         parts["feature"].append(feature.numpy())
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))
@@ -223,14 +223,23 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays | Sequence[SimArrays]
     if family_folds:
         cv_prob, cv_label = cross_validate(head, data, vdata, family_folds, seed=seed, log=log, **train_args)
         ab = fit_calibration(cv_prob, cv_label)
+        calibrated = apply_calibration(cv_prob, *ab)
         extra = {"calibration": [round(ab[0], 4), round(ab[1], 4)], "family_folds": family_folds,
                  "out_of_family_raw": scores(cv_prob, cv_label),
-                 "out_of_family": scores(apply_calibration(cv_prob, *ab), cv_label)}
+                 "out_of_family": scores(calibrated, cv_label),
+                 # each family predicted by heads that never saw it: a leave-families-out table per family
+                 "out_of_family_by_family": {
+                     str(c): {k: v for k, v in scores(calibrated[data["category"] == c],
+                                                      cv_label[data["category"] == c]).items()
+                              if k in ("n", "toppled", "precision", "recall", "f1", "brier")}
+                     for c in sorted(set(data["category"].tolist()))}}
         if log:
             before, after = extra["out_of_family_raw"], extra["out_of_family"]
             log(f"calibration for new families: scale {ab[0]:.3f}, shift {ab[1]:.3f}; out-of-family F1 "
                 f"{_fmt(before['f1'])} -> {_fmt(after['f1'])}, Brier {_fmt(before['brier'], 4)} -> "
                 f"{_fmt(after['brier'], 4)}")
+            log("out-of-family F1 by family: " + ", ".join(
+                f"{c} {_fmt(v['f1'])}" for c, v in extra["out_of_family_by_family"].items()))
     _train_members(head, _raw(head, data), torch.from_numpy(data["label"]), _raw(head, vdata),
                    torch.from_numpy(vdata["label"]), seed=seed, log=log, **train_args)
     if family_folds:
@@ -266,6 +275,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--feature-dropout", type=float, default=0.5,
                         help="chance that a training push's learned shape feature is hidden from the head, which "
                              "then decides from the physical descriptors alone (default 0.5; 0: never)")
+    parser.add_argument("--inputs", type=int, default=INPUTS_VERSION, choices=INPUTS_VERSIONS,
+                        help=f"the head's inputs version (learn/support.py; default {INPUTS_VERSION}, the current)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -286,10 +297,13 @@ def run(args: argparse.Namespace) -> int:
             or not 0.0 <= args.feature_dropout < 1.0:
         raise ValueError("--max-train must be >= 100, --epochs and --members >= 1, --partial in [0, 1], "
                          "--feature-dropout in [0, 1)")
+    inputs = int(getattr(args, "inputs", INPUTS_VERSION))
+    if inputs not in INPUTS_VERSIONS:
+        raise ValueError(f"--inputs must be one of {INPUTS_VERSIONS}, got {inputs}")
     ckpt = load_checkpoint(args.checkpoint)
     config = copy.deepcopy(ckpt["config"])
     config["model"] = dict(config["model"], topple_head=True, topple_members=int(args.members),
-                           topple_inputs=INPUTS_VERSION)
+                           topple_inputs=inputs)
     model = DynamicsModel(ModelConfig.from_dict(config["model"]))
     state = {k: v for k, v in ckpt["model"].items() if not k.startswith("topple.")}  # refit an existing head
     missing = [k for k in model.load_state_dict(state, strict=False).missing_keys if not k.startswith("topple.")]
@@ -308,7 +322,7 @@ def run(args: argparse.Namespace) -> int:
     config["topple_fit"] = {"source": ckpt["model_id"], "data": resolved[0] if len(resolved) == 1 else resolved,
                             "max_train": args.max_train, "partial": args.partial, "epochs": args.epochs,
                             "members": args.members, "seed": args.seed, "family_folds": folds,
-                            "feature_dropout": args.feature_dropout, "inputs": INPUTS_VERSION,
+                            "feature_dropout": args.feature_dropout, "inputs": inputs,
                             "validation": _compact(result)}
     model_id = save_checkpoint(args.out, model=model.eval(), config=config, dataset=ckpt.get("dataset", {}),
                                progress=ckpt.get("progress"), include_rng=False)

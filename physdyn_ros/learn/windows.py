@@ -178,7 +178,8 @@ def above_table(cloud: np.ndarray, table: np.ndarray, gap: float) -> np.ndarray:
 
 def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length: int, num_points: int,
                  rng: Optional[np.random.Generator] = None, partial: float = 0.0, noise: float = 0.0,
-                 view_rng: Optional[np.random.Generator] = None, plane_gap: float = 0.0) -> dict[str, torch.Tensor]:
+                 view_rng: Optional[np.random.Generator] = None, plane_gap: float = 0.0,
+                 desc_points: int = 0) -> dict[str, torch.Tensor]:
     """Windows of `length` frames of simulations `index` starting at `starts`, in frame C, as float32 tensors.
 
     rng: a generator for random point subsets (training); None gives the fixed subset (evaluation).
@@ -186,7 +187,8 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     come from view_rng (default: rng, else a fixed seed, so evaluation is reproducible). plane_gap > 0: the
     points within that many m of the table removed, as the perception node removes the table plane (above_table).
     Extra keys: heading (B,), centroid (B, 3) of the frame placement, start (B,), sim (B,), table (B,) the height
-    of the table plane (world z = 0) in frame C.
+    of the table plane (world z = 0) in frame C; with desc_points > 0, desc_cloud (B, desc_points, 3): a fixed
+    subset of that many points of the same cloud in the same frame C (the topple head's descriptors, support.py).
     """
     index = np.asarray(index, dtype=np.int64)
     starts = np.asarray(starts, dtype=np.int64)
@@ -205,6 +207,9 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     sub = _subsample_index(len(index), cloud_world.shape[1], num_points, rng)
     canon = frames.canonicalize_cloud(cloud_world, keep=sub)
     cloud = canon.points
+    if desc_points > 0:  # the frame comes from all the points: the same as the encoder's
+        dense = _subsample_index(len(index), cloud_world.shape[1], desc_points, None)
+        desc_cloud = frames.canonicalize_cloud(cloud_world, keep=dense).points
     heading = np.asarray(canon.heading).reshape(len(index))
     h = heading[:, None]
     inc = frames.world_increments(pos, quat, vel, angvel)
@@ -212,6 +217,8 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     out = {"cloud": cloud, "vel": frames.world_to_c(vel, h), "angvel": frames.world_to_c(angvel, h),
            "topple": sims.toppled[pick][:, 1:].astype(np.float32), "com": frames.world_to_c(-canon.centroid, heading),
            "table": -(pos[:, 0, 2] + canon.centroid[:, 2])}
+    if desc_points > 0:
+        out["desc_cloud"] = desc_cloud
     for k, v in inc.items():
         out[k] = frames.world_to_c(v, h)
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for k, v in out.items()}
@@ -278,11 +285,12 @@ class WindowDataset(torch.utils.data.Dataset):
 
 def sequences(sims: SimArrays, horizon: int, num_points: int, index: Optional[np.ndarray] = None,
               partial: float = 0.0, noise: float = 0.0, view_seed: int = 0,
-              plane_gap: float = 0.0) -> dict[str, torch.Tensor]:
+              plane_gap: float = 0.0, desc_points: int = 0) -> dict[str, torch.Tensor]:
     """Whole evaluation sequences: frames 0..horizon of each simulation, the cloud posed at frame 0
-    (partial > 0: that fraction seen as partial views, reproducible by view_seed; plane_gap: make_windows)."""
+    (partial > 0: that fraction seen as partial views, reproducible by view_seed; plane_gap, desc_points:
+    make_windows)."""
     if horizon + 1 > sims.num_frames:
         raise ValueError(f"horizon {horizon} needs {horizon + 1} frames; the dataset stores {sims.num_frames}")
     index = np.arange(len(sims)) if index is None else np.asarray(index, dtype=np.int64)
     return make_windows(sims, index, np.zeros(len(index), dtype=np.int64), horizon + 1, num_points, None,
-                        partial, noise, np.random.default_rng(view_seed), plane_gap)
+                        partial, noise, np.random.default_rng(view_seed), plane_gap, desc_points)
