@@ -295,7 +295,8 @@ class Predictor:
             # the table under each object in its cloud's frame C, centred at its centroid
             table = heights - np.array([c.centroid[2] for c in canon])
             dense = descriptor_points(self._topple.inputs)
-            points = sub if not dense else np.stack([loc[self._subset(len(p), dense)] for loc, p in zip(local, pts)])
+            points = sub if not dense else np.stack([loc[self._subset(len(p), dense)] for loc, p in zip(local, pts)]
+                                                    ).astype(np.float32)  # as training's (float32 tensors)
             desc = support_descriptors(points, offsets, self._topple.inputs, table)
             features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []

@@ -87,7 +87,7 @@ class ModelConfig:
     topple_hidden: int = 64
     topple_members: int = 5
     # inputs version of the topple head (learn/support.py): 1 for heads fitted before the tilt barriers (their
-    # checkpoints have no such key), 2 for those physdyn fit-topple fits now
+    # checkpoints have no such key); physdyn fit-topple fits support.INPUTS_VERSION (or its --inputs)
     topple_inputs: int = 1
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 

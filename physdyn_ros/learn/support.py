@@ -1,12 +1,13 @@
 """Support-polygon descriptors of a cloud and the per-push quantities that decide tipping (numpy; the inputs of
 the whole-push topple head, learn/topple.py).
 
-Computed from the same cloud the encoder sees (frame C, z up, metres): the height of the centre of mass over
-the lowest point, how far the support polygon (the convex hull of the lowest points) reaches from the centre of
-mass in each direction, the cloud's second moments, and, per direction, the potential barrier of tilting the
-object 45 deg that way on its own surface. Per push: the reach ahead of the push (friction at the base tips a
-sliding object forward over that edge), the potential barrier of tipping over it, the kinetic energy, the tilt
-barrier ahead. The per-object part runs once per object (one 2-D hull); the per-push part is vectorised.
+Computed from the cloud the encoder sees, or (version 6) from 1024 of its points (frame C, z up, metres): the
+height of the centre of mass over the lowest point, how far the support polygon (the convex hull of the lowest
+points) reaches from the centre of mass in each direction, the cloud's second moments, and, per direction, the
+potential barrier of tilting the object 45 deg that way on its own surface. Per push: the reach ahead of the push
+(friction at the base tips a sliding object forward over that edge), the potential barrier of tipping over it, the
+kinetic energy, the tilt barrier ahead. The per-object part runs once per object (one 2-D hull); the per-push part
+is vectorised.
 
 Inputs version 2 (TILT) added the tilt barriers: the support polygon of a round base (a lying can, a dumbbell on
 its discs, a ball) is the band of its lowest points, which looks as wide as a flat face, but such an object
@@ -31,8 +32,9 @@ Inputs version 5 (ROLL) keeps version 4's descriptors and adds per-push columns:
 push's component toward each of the 16 directions against the tilt barrier that way. An object that rolls
 across one axis (a dumbbell on its weights, a can lying down) rolls with the component of any oblique push
 across that axis while the rest slides along it: the barrier straight ahead (version 2's) is then the steep one
-of tipping over an end and hides the roll. (Version 4's missed held-out topples were mostly slow oblique pushes
-of dumbbells: barrier ahead 0.24 J/kg, 2.2 times less than the kinetic energy, the barrier across the bar 0.03.)
+of tipping over an end and hides the roll. (Version 4's missed held-out topples were mostly slow pushes of
+dumbbells: 61 of 83 misses, median 0.61 m/s, the kinetic energy 2.2 times the barrier ahead, 0.24 J/kg, and the
+lowest barrier, across the bar, 0.03 J/kg; alone, these columns stayed within refit noise, MODEL_CARD.md.)
 
 Inputs version 6 (DENSE) computes version 5's columns on 1024 points of the cloud (DESCRIPTOR_POINTS) instead of
 the encoder's 128: the tilt barriers and the support polygon are extremes of the points (the highest point
@@ -62,8 +64,8 @@ INPUTS_VERSIONS = (1, 2, 3, 4, 5, 6)
 INPUTS_VERSION = 6
 #: Per-object descriptors, by inputs version: centre-of-mass height over the lowest point, height, area of the
 #: support polygon, the polygon's reach in each direction, the cloud's second moments about the centre of mass
-#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); versions 3 and 4: version 2's on
-#: the completed cloud, heights from the table (the support band: completed_cloud).
+#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); versions 3-6: version 2's on
+#: the completed cloud, heights from the table (the support band: completed_cloud); version 6 on more points.
 DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, **{v: 3 + 2 * SUPPORT_DIRECTIONS + 3 for v in (2, 3, 4, 5, 6)}}
 #: Per-push quantities derived from the descriptors and the initial twist (push_quantities), by inputs version.
 PUSH_DIMS = {1: 6 + 12, **{v: 6 + 12 + 4 for v in (2, 3, 4)}, **{v: 6 + 12 + 4 + 4 for v in (5, 6)}}
@@ -76,6 +78,8 @@ def descriptor_points(inputs: int) -> int:
     """How many points of a cloud a head of inputs version `inputs` computes its descriptors on (0: the
     encoder's cloud)."""
     return DESCRIPTOR_POINTS.get(int(inputs), 0)
+
+
 DESCRIPTOR_DIM = DESCRIPTOR_DIMS[INPUTS_VERSION]
 PUSH_DIM = PUSH_DIMS[INPUTS_VERSION]
 #: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.

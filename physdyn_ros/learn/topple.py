@@ -1,13 +1,13 @@
 """Whole-push topple head: will this push topple the object at some point of its motion?
 
-Why a separate head (issue 11): the LSTM's per-step topple logit is trained on 15-frame windows and decides
-from the recurrent state, which generalised poorly to unseen shape families (held-out F1 0.61, half its alarms
-false). Whether a push topples is mostly rigid-body statics and energy: the height of the centre of mass over
-the support polygon, how far that polygon reaches in the direction of the push (friction at the base tips the
-object forward while it slides), and the kinetic energy against the potential barrier of tipping over that
-edge. This head sees those quantities, computed from the same cloud the encoder sees, next to the learned shape
-feature and the initial twist, and predicts one calibrated probability per push. The per-step probabilities of
-a roll-out keep the LSTM's timing, scaled so that their maximum is this probability (rules.whole_push_topple).
+Why a separate head (issue 11): the LSTM's per-step topple logit is trained on 15-frame windows and decides from
+the recurrent state, which generalised poorly to unseen shape families (held-out F1 0.61, half its alarms false).
+Whether a push topples is mostly rigid-body statics and energy: the height of the centre of mass over the support
+polygon, how far that polygon reaches in the direction of the push (friction at the base tips the object forward
+while it slides), and the kinetic energy against the potential barrier of tipping over that edge. This head sees
+those quantities, computed from the cloud the encoder sees (version 6: 1024 of its points), next to the learned
+shape feature and the initial twist, and predicts one calibrated probability per push. The per-step probabilities
+of a roll-out keep the LSTM's timing, scaled so that their maximum is this probability (rules.whole_push_topple).
 
 The descriptors are numpy (learn/support.py), the head a small ensemble of MLPs (averaging out the fit's
 seed-to-seed spread) whose input standardisation is stored with it. It is fitted after the dynamics network,

@@ -209,7 +209,7 @@ def fit_topple_head(model: DynamicsModel, train: SimArrays | Sequence[SimArrays]
     model.eval()
     # dataset k's view seeds are offset by 10 k: one dataset draws exactly as before several were allowed
     data = _join(*(_pushes(model, sims, n, partial, noise, rng, seed + 10 * k)
-                   for k, (sims, n) in enumerate(zip(trains, _shares([len(t) for t in trains], max_train)))))
+                   for k, (sims, n) in enumerate(zip(trains, _shares([len(t) for t in trains], max_train))) if n))
     vdata = _join(*(_join(topple_inputs(model, v, np.arange(len(v)), 0.0, noise, seed + 10 * k + 2),
                           topple_inputs(model, v, np.arange(len(v)), 1.0, noise, seed + 10 * k + 3))
                     for k, v in enumerate(vals)))
