@@ -205,11 +205,13 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     if plane_gap > 0:  # the posed cloud is centred at the centre of mass: the table lies at -pos_z
         cloud_world = above_table(cloud_world, -pos[:, 0, 2], plane_gap)
     sub = _subsample_index(len(index), cloud_world.shape[1], num_points, rng)
-    canon = frames.canonicalize_cloud(cloud_world, keep=sub)
+    # the frame comes from all the points; with desc_points both subsets are taken from one placement
+    canon = frames.canonicalize_cloud(cloud_world, keep=None if desc_points > 0 else sub)
     cloud = canon.points
-    if desc_points > 0:  # the frame comes from all the points: the same as the encoder's
+    if desc_points > 0:
         dense = _subsample_index(len(index), cloud_world.shape[1], desc_points, None)
-        desc_cloud = frames.canonicalize_cloud(cloud_world, keep=dense).points
+        desc_cloud = np.take_along_axis(cloud, dense[..., None], axis=-2)
+        cloud = np.take_along_axis(cloud, sub[..., None], axis=-2)
     heading = np.asarray(canon.heading).reshape(len(index))
     h = heading[:, None]
     inc = frames.world_increments(pos, quat, vel, angvel)
