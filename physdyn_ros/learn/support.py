@@ -33,14 +33,13 @@ push's component toward each of the 16 directions against the tilt barrier that 
 across one axis (a dumbbell on its weights, a can lying down) rolls with the component of any oblique push
 across that axis while the rest slides along it: the barrier straight ahead (version 2's) is then the steep one
 of tipping over an end and hides the roll. (Version 4's missed held-out topples were mostly slow pushes of
-dumbbells: 61 of 83 misses, median 0.61 m/s, the kinetic energy 2.2 times the barrier ahead, 0.24 J/kg, and the
-lowest barrier, across the bar, 0.03 J/kg; alone, these columns stayed within refit noise, MODEL_CARD.md.)
+dumbbells; alone, these columns stayed within refit noise, MODEL_CARD.md.)
 
 Inputs version 6 (DENSE) computes version 5's columns on 1024 points of the cloud (DESCRIPTOR_POINTS) instead of
 the encoder's 128: the tilt barriers and the support polygon are extremes of the points (the highest point
 toward a direction, the hull of the lowest), which a sparse sample misses: a 10 cm cube's corners lie 1.3 cm
 (median) from the nearest of 128 random surface points and 0.4 cm from the nearest of 1024, and its tilt
-barriers come out 6 % low (p90 11 %) from 128 points, under 1 % (p90 1.4 %) from 1024.
+barriers come out 6 % low (p90 11 %) from 128 points, under 1 % (p90 1.4 %) from 1024 (bench/topple_inputs.py).
 """
 from __future__ import annotations
 
