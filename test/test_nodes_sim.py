@@ -252,8 +252,12 @@ def test_several_objects_tracked_pushed_by_id_and_refusals(rclpy_init, tiny_mode
 
     sim = sim_node(real_time_factor=0.0, publish_cloud_rate=10.0, category="box",
                    objects=["", "id=can category=cylinder shape_seed=2 x=0.3 y=-0.05 yaw=0.3"])
+    # track_timeout 10 s: here perception shares one Python process with a sim stepping every millisecond and
+    # processed a cloud only every 0.4-2.1 s of cloud stamps (a CI run: 2.09 -> 4.19 s across the push), which the
+    # default 2 s retires every track on; the ids must survive the push, not this test's cloud rate
     perception = PerceptionNode(parameter_overrides=[Parameter("model_path", value=str(tiny_model)),
-                                                     Parameter("single_object", value=False)])
+                                                     Parameter("single_object", value=False),
+                                                     Parameter("track_timeout", value=10.0)])
     rec = Recorder(rclpy_init)
     feats: list[ShapeFeature] = []
     rec.node.create_subscription(ShapeFeature, "shape_feature", feats.append, FEATURE_QOS)
