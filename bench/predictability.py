@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """How predictable is a push's final pose at all? The data's own simulator, re-run (issue 11's rotation goal).
 
-    .venv/bin/python bench/predictability.py [--data data/pybullet_test] [--max-sequences 400] [--speed-error 0.02]
-        [--checkpoint CKPT]
+    .venv/bin/python bench/predictability.py [--data data/pybullet_test] [--categories C ...] [--max-sequences 400]
+        [--speed-error 0.02] [--checkpoint CKPT]
 
 On the same test pushes `physdyn evaluate --max-sequences N` takes (evenly spaced over the test split), each push
 is simulated again with the dataset's own shape (rebuilt from the manifest: the same mesh, convex decomposition,
@@ -71,6 +71,7 @@ def resimulate(sims, index: np.ndarray, factor: float) -> tuple[np.ndarray, np.n
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default="data/pybullet_test")
+    ap.add_argument("--categories", nargs="+", default=None, help="only these shape categories (as evaluate)")
     ap.add_argument("--max-sequences", type=int, default=400)
     ap.add_argument("--speed-error", type=float, default=0.02, help="relative error of the measured push")
     ap.add_argument("--checkpoint", default=str(ROOT / "physdyn_ros" / "models" / "default.pt"))
@@ -84,7 +85,7 @@ def main() -> int:
     from physdyn_ros.learn.windows import load_sims
 
     torch.set_num_threads(1)
-    sims = load_sims(args.data, ["test"])
+    sims = load_sims(args.data, ["test"], categories=args.categories)
     index = np.arange(len(sims))
     if args.max_sequences < len(index):  # physdyn evaluate's choice of sequences
         index = np.linspace(0, len(sims) - 1, args.max_sequences).astype(np.int64)
