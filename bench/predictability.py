@@ -13,10 +13,16 @@ impulse), three ways:
     e; default 2 %);
 and the checkpoint's roll-outs (physdyn evaluate's) for reference. Over the recorded pushes that do not topple:
 the final (60 steps, 4 s) position and rotation differences from the recording, median and p90.
+Also, over all the test split's pushes that do not topple and keep spinning (|w_z| > 1 rad/s) for at least four
+frames after the push: the spin's mean deceleration over those frames against the prior's mu g / r (r: the RMS
+horizontal radius of the cloud, learn/prior.py) and against mu g e / k^2 (e: the mean horizontal distance of the
+cloud's lowest points, within 1 mm, from the centre of mass; k^2: the cloud's mean squared horizontal distance
+from it): the median ratio, the standard deviation of its log, and the correlation of the logs.
 The spread between the recording and a replay or a 2 % different push is the part of the final pose that no
 predictor reading the cloud and a measured push can be expected to recover.
 Prints a table; the last line is one JSON object {n, replay: {pos_median_cm, pos_p90_cm, rot_median_deg,
-rot_p90_deg}, push_plus: {...}, push_minus: {...}, model: {...}, speed_error}.
+rot_p90_deg}, push_plus: {...}, push_minus: {...}, model: {...}, speed_error, spin_decel: {n, prior: {ratio_median,
+std_log, corr_log}, contact: {...}}}.
 """
 from __future__ import annotations
 
@@ -43,6 +49,38 @@ def final_errors(pos: np.ndarray, quat: np.ndarray, true_pos: np.ndarray, true_q
 
     (pm, p9), (rm, r9) = pair(d_pos), pair(d_rot)
     return {"pos_median_cm": pm, "pos_p90_cm": p9, "rot_median_deg": rm, "rot_p90_deg": r9}
+
+
+def spin_deceleration(sims) -> dict:
+    """The measured spin deceleration of the pushes that keep spinning against two readings of the cloud."""
+    from scipy.spatial.transform import Rotation
+
+    from physdyn_ros.conventions import GRAVITY
+
+    rows = []
+    for i in np.flatnonzero(sims.topple_index < 0):
+        w = np.abs(sims.ang_vel[i, :, 2])
+        k = 1
+        while k + 1 < len(w) and w[k + 1] > 1.0:
+            k += 1
+        if k < 4 or w[1] <= w[k]:
+            continue
+        decel = (w[1] - w[k]) / ((k - 1) * sims.dt)
+        p = Rotation.from_quat(sims.quat[i, 0]).apply(sims.points[sims.shape_index[i]] * sims.scale[i])
+        xy, z = p[:, :2], p[:, 2]  # axes of the world, origin at the centre of mass
+        r_rms = np.sqrt(np.mean(np.sum((xy - xy.mean(0)) ** 2, axis=1)))
+        lowest = z < z.min() + 0.001
+        lever = np.mean(np.linalg.norm(xy[lowest], axis=1)) / np.mean(np.sum(xy ** 2, axis=1))
+        mu_g = float(sims.friction[i]) * GRAVITY
+        rows.append((decel, mu_g / r_rms, mu_g * lever))
+    d = np.log(np.asarray(rows))
+    out: dict = {"n": int(len(d))}
+    for j, name in ((1, "prior"), (2, "contact")):
+        ratio = d[:, 0] - d[:, j]
+        out[name] = {"ratio_median": round(float(np.exp(np.median(ratio))), 3),
+                     "std_log": round(float(np.std(ratio)), 3),
+                     "corr_log": round(float(np.corrcoef(d[:, 0], d[:, j])[0, 1]), 3)}
+    return out
 
 
 def resimulate(sims, index: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarray]:
@@ -109,6 +147,12 @@ def main() -> int:
                         ("model", f"model {Path(args.checkpoint).name}")):
         e = out[name]
         print(f"| {label} | {e['pos_median_cm']} / {e['pos_p90_cm']} | {e['rot_median_deg']} / {e['rot_p90_deg']} |")
+    out["spin_decel"] = spin_deceleration(sims)
+    sd = out["spin_decel"]
+    print(f"spin deceleration of the {sd['n']} test pushes that do not topple and keep spinning for 4+ frames: "
+          + "; ".join(f"against {label}: median ratio {sd[k]['ratio_median']}, std of the log {sd[k]['std_log']}, "
+                      f"correlation of the logs {sd[k]['corr_log']}"
+                      for k, label in (("prior", "the prior's mu g / r"), ("contact", "mu g e / k^2 (lowest points)"))))
     print(json.dumps(out))
     return 0
 

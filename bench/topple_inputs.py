@@ -8,11 +8,12 @@
    its four faces (support.tilt_barriers) against the exact g a (sqrt(2) - 1). Why inputs version 6 reads 1024.
 2. Rotation error split (with --data): the checkpoint's 60-step roll-outs (physdyn evaluate's, learn/evaluate.py
    model_rollouts) on the dataset's test split; over the pushes that do not topple, the final rotation error and
-   its yaw (z) and tilt (x, y) parts as a rotation vector in world axes, the true turn, and the shapes with the
-   largest median error.
+   its yaw (z) and tilt (x, y) parts as a rotation vector in world axes, the true turn, the shapes with the
+   largest median error, and by initial spin about z (bins in rad/s) the error and how far the model turns the
+   object about z against how far it turns (median of the ratio; over 180° the angles wrap).
 Prints both; the last line is one JSON object: corner_gap_cm {128, 1024}, barrier_ratio {128, 1024} (median and
 p90 of |barrier / exact - 1|), and with --data rotation {n, error_median_deg, yaw_median_deg, tilt_median_deg,
-true_turn_median_deg, worst: {shape: median deg}}.
+true_turn_median_deg, worst: {shape: median deg}, by_spin: {bin: {n, error_median_deg, turn_ratio_median}}}.
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+#: rad/s, initial |w_z| bins of the rotation split
+SPIN_BINS = ((0.0, 0.5), (0.5, 2.0), (2.0, 6.0), (6.0, float("inf")))
 
 
 def density(samplings: int) -> dict:
@@ -74,16 +77,31 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
     shapes = np.asarray(sims.shape_id[index[keep]]).astype(str)
     per_shape = {s: float(np.median(total[shapes == s])) for s in sorted(set(shapes.tolist()))}
     top = dict(sorted(per_shape.items(), key=lambda kv: -kv[1])[:worst])
-    turn = (true * Rotation.from_quat(sims.quat[index[keep], 0]).inv()).magnitude()
+    start = Rotation.from_quat(sims.quat[index[keep], 0])
+    turn = (true * start.inv()).magnitude()
+    # by the initial spin about the vertical: how far the model turns the object against how far it turns
+    true_yaw = np.abs((true * start.inv()).as_rotvec()[:, 2])
+    pred_yaw = np.abs((pred * start.inv()).as_rotvec()[:, 2])
+    spin0 = np.abs(sims.ang_vel[index[keep], 0, 2])
+    by_spin = {}
+    for lo, hi in SPIN_BINS:
+        m = (spin0 >= lo) & (spin0 < hi)
+        if m.any():
+            by_spin[f"{lo:g}-{hi:g}"] = {
+                "n": int(m.sum()), "error_median_deg": round(float(np.median(total[m])), 2),
+                "turn_ratio_median": round(float(np.median(pred_yaw[m] / np.maximum(true_yaw[m], 1e-4))), 2)}
     out = {"n": int(keep.sum()), "error_median_deg": round(float(np.median(total)), 2),
            "yaw_median_deg": round(float(np.degrees(np.median(np.abs(err[:, 2])))), 2),
            "tilt_median_deg": round(float(np.degrees(np.median(np.linalg.norm(err[:, :2], axis=1)))), 2),
            "true_turn_median_deg": round(float(np.degrees(np.median(turn))), 2),
-           "worst": {k: round(v, 1) for k, v in top.items()}}
+           "worst": {k: round(v, 1) for k, v in top.items()}, "by_spin": by_spin}
     print(f"{data}: {out['n']} pushes that do not topple; final rotation error median {out['error_median_deg']}°, "
           f"yaw part {out['yaw_median_deg']}°, tilt part {out['tilt_median_deg']}°; the objects turn "
           f"{out['true_turn_median_deg']}° (median); largest per-shape medians: "
           + ", ".join(f"{k} {v:.1f}°" for k, v in out["worst"].items()))
+    for name, b in by_spin.items():
+        print(f"  initial spin {name} rad/s: {b['n']} pushes, error median {b['error_median_deg']}°, predicted / true "
+              f"turn about z median {b['turn_ratio_median']}")
     return out
 
 
