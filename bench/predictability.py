@@ -40,22 +40,21 @@ HORIZON = 60
 
 
 def final_errors(pos: np.ndarray, quat: np.ndarray, true_pos: np.ndarray, true_quat: np.ndarray) -> dict:
-    from scipy.spatial.transform import Rotation
+    from physdyn_ros import geometry as geo
 
-    d_pos = np.linalg.norm(pos - true_pos, axis=1) * 100
-    d_rot = np.degrees((Rotation.from_quat(true_quat) * Rotation.from_quat(quat).inv()).magnitude())
     def pair(x: np.ndarray) -> tuple[float, float]:
         return round(float(np.median(x)), 2), round(float(np.percentile(x, 90)), 2)
 
-    (pm, p9), (rm, r9) = pair(d_pos), pair(d_rot)
+    (pm, p9) = pair(np.linalg.norm(pos - true_pos, axis=1) * 100)
+    (rm, r9) = pair(np.degrees(geo.quat_angle_between(quat, true_quat)))
     return {"pos_median_cm": pm, "pos_p90_cm": p9, "rot_median_deg": rm, "rot_p90_deg": r9}
 
 
 def spin_deceleration(sims) -> dict:
     """The measured spin deceleration of the pushes that keep spinning against two readings of the cloud."""
-    from scipy.spatial.transform import Rotation
-
     from physdyn_ros.conventions import GRAVITY
+    from physdyn_ros.learn.baselines import horizontal_radius
+    from physdyn_ros.learn.frames import pose_cloud
 
     rows = []
     for i in np.flatnonzero(sims.topple_index < 0):
@@ -66,9 +65,9 @@ def spin_deceleration(sims) -> dict:
         if k < 4 or w[1] <= w[k]:
             continue
         decel = (w[1] - w[k]) / ((k - 1) * sims.dt)
-        p = Rotation.from_quat(sims.quat[i, 0]).apply(sims.points[sims.shape_index[i]] * sims.scale[i])
-        xy, z = p[:, :2], p[:, 2]  # axes of the world, origin at the centre of mass
-        r_rms = np.sqrt(np.mean(np.sum((xy - xy.mean(0)) ** 2, axis=1)))
+        p = pose_cloud(sims.points[sims.shape_index[i]], sims.scale[i], sims.quat[i, 0])  # origin at the COM
+        xy, z = p[:, :2], p[:, 2]
+        r_rms = float(horizontal_radius(p[None])[0])  # the prior's lever (learn/prior.py, baselines)
         lowest = z < z.min() + 0.001
         lever = np.mean(np.linalg.norm(xy[lowest], axis=1)) / np.mean(np.sum(xy ** 2, axis=1))
         mu_g = float(sims.friction[i]) * GRAVITY
@@ -83,14 +82,12 @@ def spin_deceleration(sims) -> dict:
     return out
 
 
-def resimulate(sims, index: np.ndarray, factor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Final (HORIZON) positions and orientations of the pushes `index` re-simulated with their own shapes."""
+def resimulate(sims, index: np.ndarray, shapes: list, factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """Final (HORIZON) positions and orientations of the pushes `index` re-simulated with their own shapes
+    (`shapes`: the dataset's, in manifest order)."""
     from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
-    from physdyn_ros.sim.generation.workers import build_shapes
 
-    gen = sims.manifest["generator"]
-    shapes = build_shapes(gen)
-    config = SimConfig(**gen["sim"])  # the generator's physics (the convex decompositions are cached)
+    config = SimConfig(**sims.manifest["generator"]["sim"])  # the generator's physics (decompositions are cached)
     pos, quat = [], []
     with Simulator(config) as sim:
         for i in index:
@@ -121,6 +118,7 @@ def main() -> int:
     from physdyn_ros.learn.checkpoint import load_model
     from physdyn_ros.learn.evaluate import model_rollouts
     from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros.sim.generation.workers import build_shapes
 
     torch.set_num_threads(1)
     sims = load_sims(args.data, ["test"], categories=args.categories)
@@ -131,9 +129,10 @@ def main() -> int:
     true_pos, true_quat = sims.pos[index, HORIZON], sims.quat[index, HORIZON]
     out: dict = {"n": int(len(index)), "speed_error": args.speed_error}
     t0 = time.perf_counter()
+    shapes = build_shapes(sims.manifest["generator"])  # once: the procedural worlds hold thousands
     for name, factor in (("replay", 1.0), ("push_plus", 1.0 + args.speed_error),
                          ("push_minus", 1.0 - args.speed_error)):
-        out[name] = final_errors(*resimulate(sims, index, factor), true_pos, true_quat)
+        out[name] = final_errors(*resimulate(sims, index, shapes, factor), true_pos, true_quat)
     sim_s = time.perf_counter() - t0
     model, _ = load_model(args.checkpoint)
     traj = model_rollouts(model, sims, index, HORIZON)

@@ -78,9 +78,10 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
     per_shape = {s: float(np.median(total[shapes == s])) for s in sorted(set(shapes.tolist()))}
     top = dict(sorted(per_shape.items(), key=lambda kv: -kv[1])[:worst])
     start = Rotation.from_quat(sims.quat[index[keep], 0])
-    turn = (true * start.inv()).magnitude()
+    turned = true * start.inv()
+    turn = turned.magnitude()
     # by the initial spin about the vertical: how far the model turns the object against how far it turns
-    true_yaw = np.abs((true * start.inv()).as_rotvec()[:, 2])
+    true_yaw = np.abs(turned.as_rotvec()[:, 2])
     pred_yaw = np.abs((pred * start.inv()).as_rotvec()[:, 2])
     spin0 = np.abs(sims.ang_vel[index[keep], 0, 2])
     by_spin = {}
