@@ -10,10 +10,19 @@
    model_rollouts) on the dataset's test split; over the pushes that do not topple, the final rotation error and
    its yaw (z) and tilt (x, y) parts as a rotation vector in world axes, the true turn, the shapes with the
    largest median error, and by initial spin about z (bins in rad/s) the error and how far the model turns the
-   object about z against how far it turns (median of the ratio; over 180° the angles wrap).
-Prints both; the last line is one JSON object: corner_gap_cm {128, 1024}, barrier_ratio {128, 1024} (median and
+   object about z against how far it turns (median of the ratio, over the pushes that turn more than 2°; the
+   turns are the sums of the steps' yaw increments, so several revolutions count as such).
+3. Spin deceleration (with --data, the same pushes): the checkpoint fed the true velocities at every step
+   (teacher-forced, model_single_step's setting) against the data, per step by the spin |w_z| before it (the
+   same bins, the first 800 pushes): the mean deceleration of |w_z| predicted and true and their ratio; and per
+   category (its first 150 pushes, steps spinning over 2 rad/s) the predicted and the model's prior's (mu g / r,
+   times the learned lever where the model has one) against the true. Over 1 the network stops the spin too
+   soon, whatever the roll-out does with it.
+Prints all; the last line is one JSON object: corner_gap_cm {128, 1024}, barrier_ratio {128, 1024} (median and
 p90 of |barrier / exact - 1|), and with --data rotation {n, error_median_deg, yaw_median_deg, tilt_median_deg,
-true_turn_median_deg, worst: {shape: median deg}, by_spin: {bin: {n, error_median_deg, turn_ratio_median}}}.
+true_turn_median_deg, worst: {shape: median deg}, by_spin: {bin: {n, error_median_deg, turn_ratio_median}},
+spin_decel: {by_spin: {bin: {steps, true_mean, pred_mean, ratio}}, by_category: {category: {steps, true_mean,
+pred_ratio, prior_ratio}}} (rad/s per step)}.
 """
 from __future__ import annotations
 
@@ -57,6 +66,69 @@ def density(samplings: int) -> dict:
     return out
 
 
+def turned_about_z(quat: np.ndarray) -> np.ndarray:
+    """Total turn about the world z (rad) of orientations (B, T, 4): the sum of the steps' yaw increments."""
+    from scipy.spatial.transform import Rotation
+
+    total = np.zeros(quat.shape[0])
+    for t in range(quat.shape[1] - 1):
+        total += (Rotation.from_quat(quat[:, t + 1]) * Rotation.from_quat(quat[:, t]).inv()).as_rotvec()[:, 2]
+    return total
+
+
+def spin_deceleration(model, sims, index: np.ndarray, horizon: int = 60, per_bin: int = 800,
+                      per_category: int = 150) -> dict:
+    """Teacher-forced deceleration of |w_z| per step, predicted, true and the model's prior's (mu g / r, or the
+    learned lever's), by the spin before the step (the first `per_bin` pushes of `index`) and per category (spin
+    over 2 rad/s, the first `per_category` pushes of each category among `index`)."""
+    import torch
+
+    from physdyn_ros.learn.prior import sliding_step
+    from physdyn_ros.learn.windows import sequences
+
+    def decelerations(rows: np.ndarray) -> tuple[np.ndarray, ...]:
+        pred, true, prior, spin = [], [], [], []
+        with torch.inference_mode():
+            for start in range(0, len(rows), 200):
+                seq = sequences(sims, horizon, model.cfg.num_points, rows[start:start + 200])
+                feature = model.encode(seq["cloud"])
+                vel, angvel = seq["vel"][:, :-1], seq["angvel"][:, :-1]
+                raw = model.teacher_forced(feature, vel, angvel)
+                pred.append(model.denormalize(raw)["d_angvel"][..., 2].numpy())
+                true.append(seq["d_angvel"][..., 2].numpy())
+                spin.append(angvel[..., 2].numpy())
+                if model.cfg.prior != "none":
+                    steps = [c[:, None].expand(-1, vel.shape[1]) for c in model._prior_decel(feature)]
+                    prior.append(sliding_step(vel, angvel, *steps)[1][..., 2].numpy())
+                else:
+                    prior.append(np.zeros_like(spin[-1]))
+        return tuple(np.concatenate(a).ravel() for a in (pred, true, prior, spin))
+
+    def mean_decel(values: np.ndarray, spin: np.ndarray) -> float:  # along the spin: positive slows it down
+        return float(np.mean(-values * np.sign(spin)))
+
+    p, t, pr, w = decelerations(index[:per_bin])
+    by_spin = {}
+    for lo, hi in SPIN_BINS[1:]:  # below 0.5 rad/s the sign of the spin is noise
+        m = (np.abs(w) >= lo) & (np.abs(w) < hi)
+        if m.any():
+            pd, td = mean_decel(p[m], w[m]), mean_decel(t[m], w[m])
+            by_spin[f"{lo:g}-{hi:g}"] = {"steps": int(m.sum()), "true_mean": round(td, 3), "pred_mean": round(pd, 3),
+                                         "ratio": round(pd / td, 3) if td > 0 else None}
+    categories = np.asarray(sims.category).astype(str)
+    by_category = {}
+    for cat in sorted(set(categories[index].tolist())):
+        rows = index[categories[index] == cat][:per_category]
+        p, t, pr, w = decelerations(rows)
+        m = np.abs(w) > 2.0
+        if m.any():
+            td = mean_decel(t[m], w[m])
+            by_category[cat] = {"steps": int(m.sum()), "true_mean": round(td, 3),
+                                "pred_ratio": round(mean_decel(p[m], w[m]) / td, 3) if td > 0 else None,
+                                "prior_ratio": round(mean_decel(pr[m], w[m]) / td, 3) if td > 0 else None}
+    return {"by_spin": by_spin, "by_category": by_category}
+
+
 def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
     import torch
     from scipy.spatial.transform import Rotation
@@ -78,24 +150,26 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
     per_shape = {s: float(np.median(total[shapes == s])) for s in sorted(set(shapes.tolist()))}
     top = dict(sorted(per_shape.items(), key=lambda kv: -kv[1])[:worst])
     start = Rotation.from_quat(sims.quat[index[keep], 0])
-    turned = true * start.inv()
-    turn = turned.magnitude()
+    turn = (true * start.inv()).magnitude()
     # by the initial spin about the vertical: how far the model turns the object against how far it turns
-    true_yaw = np.abs(turned.as_rotvec()[:, 2])
-    pred_yaw = np.abs((pred * start.inv()).as_rotvec()[:, 2])
+    true_yaw = turned_about_z(sims.quat[index[keep], :61])
+    pred_yaw = turned_about_z(traj.quat[keep, :61])
     spin0 = np.abs(sims.ang_vel[index[keep], 0, 2])
     by_spin = {}
     for lo, hi in SPIN_BINS:
         m = (spin0 >= lo) & (spin0 < hi)
+        turning = m & (np.abs(true_yaw) > math.radians(2.0))
         if m.any():
             by_spin[f"{lo:g}-{hi:g}"] = {
                 "n": int(m.sum()), "error_median_deg": round(float(np.median(total[m])), 2),
-                "turn_ratio_median": round(float(np.median(pred_yaw[m] / np.maximum(true_yaw[m], 1e-4))), 2)}
+                "turn_ratio_median": (round(float(np.median(pred_yaw[turning] / true_yaw[turning])), 2)
+                                      if turning.any() else None)}
     out = {"n": int(keep.sum()), "error_median_deg": round(float(np.median(total)), 2),
            "yaw_median_deg": round(float(np.degrees(np.median(np.abs(err[:, 2])))), 2),
            "tilt_median_deg": round(float(np.degrees(np.median(np.linalg.norm(err[:, :2], axis=1)))), 2),
            "true_turn_median_deg": round(float(np.degrees(np.median(turn))), 2),
-           "worst": {k: round(v, 1) for k, v in top.items()}, "by_spin": by_spin}
+           "worst": {k: round(v, 1) for k, v in top.items()}, "by_spin": by_spin,
+           "spin_decel": spin_deceleration(model, sims, index[keep])}
     print(f"{data}: {out['n']} pushes that do not topple; final rotation error median {out['error_median_deg']}°, "
           f"yaw part {out['yaw_median_deg']}°, tilt part {out['tilt_median_deg']}°; the objects turn "
           f"{out['true_turn_median_deg']}° (median); largest per-shape medians: "
@@ -103,6 +177,13 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
     for name, b in by_spin.items():
         print(f"  initial spin {name} rad/s: {b['n']} pushes, error median {b['error_median_deg']}°, predicted / true "
               f"turn about z median {b['turn_ratio_median']}")
+    for name, b in out["spin_decel"]["by_spin"].items():
+        print(f"  spin {name} rad/s, teacher-forced: {b['steps']} steps, deceleration predicted {b['pred_mean']} "
+              f"against {b['true_mean']} rad/s per step ({b['ratio']}x)")
+    print("  spin deceleration over 2 rad/s by category (teacher-forced), predicted / true and the prior's / true:")
+    for cat, b in sorted(out["spin_decel"]["by_category"].items(), key=lambda kv: kv[1]["pred_ratio"] or 0):
+        print(f"    {cat:16s} {b['steps']:5d} steps, true {b['true_mean']:.2f} rad/s per step, predicted "
+              f"{b['pred_ratio']}x, prior {b['prior_ratio']}x")
     return out
 
 
