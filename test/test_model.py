@@ -179,6 +179,31 @@ def test_training_windows_are_invariant_to_rotating_and_moving_the_whole_simulat
     assert np.abs(turned).max() < 1e-5
 
 
+def test_windows_from_the_impulse_start_at_frame_zero_and_leave_the_uniform_draw_alone():
+    """train.start_fraction: that share of windows starts at frame 0; at 0 the starts are exactly the old draw."""
+    from physdyn_ros.learn.train import TrainConfig
+    from physdyn_ros.learn.windows import WindowDataset, load_sims, random_starts
+
+    sims = load_sims(tiny_dataset(), ["train"])
+    idx = np.arange(len(sims))
+    uniform = random_starts(sims, idx, 10, np.random.default_rng(3))
+    assert (uniform > 0).mean() > 0.8
+    np.testing.assert_array_equal(random_starts(sims, idx, 10, np.random.default_rng(3), 0.0), uniform)
+    assert not random_starts(sims, idx, 10, np.random.default_rng(3), 1.0).any()
+    half = random_starts(sims, idx, 10, np.random.default_rng(3), 0.5)
+    moved = half != uniform
+    assert not half[moved].any() and 0.25 < (half == 0).mean() < 0.75  # the others kept their uniform start
+    batch = WindowDataset(sims, 10, 64, from_impulse=1.0).batch(idx[:4], np.random.default_rng(0))
+    # the windows' first state is the push's frame 0 (speeds: the window's frame C turns the vectors)
+    assert np.allclose(np.linalg.norm(batch["vel"][:, 0].numpy(), axis=1),
+                       np.linalg.norm(sims.lin_vel[idx[:4], 0], axis=1), atol=1e-5)
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="from_impulse"):
+            random_starts(sims, idx, 10, np.random.default_rng(0), bad)
+        with pytest.raises(ValueError, match="start_fraction"):
+            TrainConfig(start_fraction=bad)
+
+
 def test_rotation_increments_are_world_fixed():
     """d_rot_t = log(q_{t+1} q_t^-1) matches omega * dt (world frame), as the model's convention says."""
     from physdyn_ros.learn.windows import load_sims

@@ -38,20 +38,23 @@ SPEED_EPS = 1e-6
 def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor, coupling: Tensor,
                  dt: float = DT) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
     """One step of the prior. vel, angvel (..., 3) physical in C; decel (...,) = mu g (m/s^2); spin_decel
-    (...,) = mu g / r (rad/s^2); coupling (...,) 0 (model.prior sliding: the two decelerations independent) or 1
-    (coupled: see the module docstring). Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
+    (...,) = mu g / r (rad/s^2); coupling (...,) 0 (model.prior sliding: the two decelerations independent) or
+    k > 0 (coupled, see the module docstring, with the friction's lever k mu g / spin_decel: k = 1 for the plain
+    prior, the lever r; model.prior_lever's f^2 when the spin deceleration is f mu g / r, the lever f r).
+    Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
     vxy = vel[..., :2]
     # + SPEED_EPS^2 under the root: a finite gradient at rest (windows end in rest frames with v = 0 exactly)
     speed = torch.sqrt((vxy * vxy).sum(-1, keepdim=True) + 1e-12)  # 1e-12 = SPEED_EPS ** 2 (TorchScript: a literal)
     wz = angvel[..., 2:3]
     w_abs = wz.abs()
     c = coupling[..., None]
-    # friction shared between sliding and spinning (ellipsoidal limit surface, lever r = mu g / spin_decel):
+    on = (c > 0).to(c.dtype)
+    # friction shared between sliding and spinning (ellipsoidal limit surface, lever r = c mu g / spin_decel):
     # shares speed / |(speed, r w)| and r |w| / |(speed, r w)|; c = 0 leaves both decelerations exactly as they were
-    lever_w = decel[..., None] / spin_decel[..., None].clamp_min(1e-9) * w_abs
+    lever_w = c * decel[..., None] / spin_decel[..., None].clamp_min(1e-9) * w_abs
     norm = torch.sqrt(speed * speed + lever_w * lever_w)
-    a = decel[..., None] * (1.0 - c + c * speed / norm)
-    alpha = spin_decel[..., None] * (1.0 - c + c * lever_w / norm)
+    a = decel[..., None] * (1.0 - on + on * speed / norm)
+    alpha = spin_decel[..., None] * (1.0 - on + on * lever_w / norm)
     direction = vxy / speed
     t_slide = torch.minimum(speed / a.clamp_min(1e-9), torch.full_like(speed, dt))
     dist = speed * t_slide - 0.5 * a * t_slide * t_slide
@@ -102,7 +105,7 @@ def prior_into(row, x, c: tuple) -> None:
     vx, vy, wz = float(x[0]) * s0, float(x[1]) * s1, float(x[5]) * s5
     speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
     if coupling:  # sliding_step's shared friction
-        lever_w = decel / max(spin, 1e-9) * abs(wz)
+        lever_w = coupling * decel / max(spin, 1e-9) * abs(wz)
         norm = math.sqrt(speed * speed + lever_w * lever_w)
         decel, spin = decel * speed / norm, spin * lever_w / norm
     t = min(speed / decel, dt) if decel > 0 else dt
