@@ -1,17 +1,19 @@
 #!/usr/bin/env python3
-"""Two measurements behind the topple head's inputs and the rotation goal (issue 11).
+"""Three measurements behind the topple head's inputs and the rotation goal (issue 11).
 
-    .venv/bin/python bench/topple_inputs.py [--checkpoint CKPT] [--data data/pybullet_test] [--samplings 50]
+    .venv/bin/python bench/topple_inputs.py [--checkpoint CKPT] [--data data/pybullet_test] [--split test]
+        [--max-sequences 0] [--samplings 50]
 
 1. Descriptor density: a 10 cm cube sampled `--samplings` times with 128 and with 1024 random surface points
    (trimesh, seeds 0..): the distance from its corners to the nearest sampled point, and its tilt barriers toward
    its four faces (support.tilt_barriers) against the exact g a (sqrt(2) - 1). Why inputs version 6 reads 1024.
 2. Rotation error split (with --data): the checkpoint's 60-step roll-outs (physdyn evaluate's, learn/evaluate.py
-   model_rollouts) on the dataset's test split; over the pushes that do not topple, the final rotation error and
-   its yaw (z) and tilt (x, y) parts as a rotation vector in world axes, the true turn, the shapes with the
-   largest median error, and by initial spin about z (bins in rad/s) the error and how far the model turns the
-   object about z against how far it turns (median of the ratio, over the pushes that turn more than 2°; the
-   turns are the sums of the steps' yaw increments, so several revolutions count as such).
+   model_rollouts) on the dataset's --split (test; --max-sequences: a fixed random subset); over the pushes
+   that do not topple, the final rotation error and its yaw (z) and tilt (x, y) parts as a rotation vector in
+   world axes, the true turn, the shapes with the largest median error, and by initial spin about z (bins in
+   rad/s) the error and how far the model turns the object about z against how far it turns (median of the
+   ratio, over the pushes that turn more than 2°; the turns are the sums of the steps' yaw increments, so
+   several revolutions count as such).
 3. Spin deceleration (with --data, the same pushes): the checkpoint fed the true velocities at every step
    (teacher-forced, model_single_step's setting) against the data, per step by the spin |w_z| before it (the
    same bins, the first 800 pushes): the mean deceleration of |w_z| predicted and true and their ratio; and per
@@ -129,7 +131,7 @@ def spin_deceleration(model, sims, index: np.ndarray, horizon: int = 60, per_bin
     return {"by_spin": by_spin, "by_category": by_category}
 
 
-def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
+def rotation(checkpoint: str, data: str, split: str = "test", max_sequences: int = 0, worst: int = 5) -> dict:
     import torch
     from scipy.spatial.transform import Rotation
 
@@ -139,8 +141,10 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
 
     torch.set_num_threads(1)
     model, _ = load_model(checkpoint)
-    sims = load_sims(data, ["test"])
+    sims = load_sims(data, [split])
     index = np.arange(len(sims))
+    if 0 < max_sequences < len(index):  # a fixed random subset: every category keeps its share
+        index = np.sort(np.random.default_rng(0).choice(index, max_sequences, replace=False))
     traj = model_rollouts(model, sims, index, 60)
     keep = sims.topple_index[index] < 0
     pred, true = Rotation.from_quat(traj.quat[keep, 60]), Rotation.from_quat(sims.quat[index[keep], 60])
@@ -190,14 +194,17 @@ def rotation(checkpoint: str, data: str, worst: int = 5) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=str(ROOT / "physdyn_ros" / "models" / "default.pt"))
-    ap.add_argument("--data", default=None, help="dataset for the rotation split (its test split)")
+    ap.add_argument("--data", default=None, help="dataset for the rotation split")
+    ap.add_argument("--split", default="test", choices=("train", "val", "test"),
+                    help="its split (train: how the model fits the pushes it was trained on)")
+    ap.add_argument("--max-sequences", type=int, default=0, help="a fixed random subset of the split (0: all)")
     ap.add_argument("--samplings", type=int, default=50)
     args = ap.parse_args()
-    if args.samplings < 1:
-        ap.error("--samplings must be >= 1")
+    if args.samplings < 1 or args.max_sequences < 0:
+        ap.error("--samplings must be >= 1 and --max-sequences >= 0")
     result = density(args.samplings)
     if args.data:
-        result["rotation"] = rotation(args.checkpoint, args.data)
+        result["rotation"] = rotation(args.checkpoint, args.data, args.split, args.max_sequences)
     print(json.dumps(result))
     return 0
 
