@@ -51,15 +51,13 @@ class LossConfig:
     # resting one's is large, so the few steps that carry most of a hard push's travel are under-weighted.
     w_abs: float = 0.0
     # Beyond the paper: w_cum * the error of the pose accumulated over the window (position and rotation
-    # increments summed from its start, normalised units, L2 / L1), averaged over its steps. The per-step losses
-    # left a bias that only shows when the steps add up: session 13's model decelerated spins 1.1-1.5x as fast as
-    # its own training data (teacher-forced) and turned objects 0.73-0.78x as far as they turn, and 70 more
-    # minutes of training on them moved the validation's final rotation not at all (runs/s14 notes, model card).
+    # increments summed from its start, normalised units, L2 / L1), averaged over its steps: the per-step losses
+    # leave biases that show only when the steps add up (roll-outs that stop spinning too soon; model card,
+    # session 14, where this and w_spin were tried).
     w_cum: float = 0.0
     # Beyond the paper: w_spin * the absolute error of the spin's change and of the turn about z (the z parts of
-    # d_angvel and d_rot, normalised units, L1). Inside the vector losses the spin's deceleration is a small part
-    # of |d_angvel|, whose tilt parts (wobble) dominate: scaling the predicted deceleration by 0.7-1.1 moved the
-    # d_angvel loss by 0.3 % (session 14), and the model kept decelerating its own training mugs 1.7x too fast.
+    # d_angvel and d_rot, normalised units, L1): inside the vector losses the spin's deceleration is a small part
+    # of |d_angvel|, whose tilt parts (wobble) dominate.
     w_spin: float = 0.0
     # Models with a centre-of-mass head (model.com_head): w_com * the L2 error of the estimate in cloud-scale units.
     w_com: float = 1.0

@@ -82,8 +82,9 @@ class ModelConfig:
     prior_friction: float = 0.5
     # A learned per-object contact lever f r for the prior, f = exp(a . feature + b) (clipped to e^+-3), f = 1 at
     # start (the prior unchanged): spin deceleration f mu g / r and, coupled, the friction shared over the lever
-    # f r. The residual network left the spin deceleration near the prior's mu g / r (session 14: mugs, bottles
-    # and superellipsoids 1.5-1.7x, wedges and boxes 0.8x the data's; bench/topple_inputs.py).
+    # f r. The residual network leaves the spin deceleration between the prior's mu g / r and the data's (session
+    # 14, on its own training pushes: mugs 1.7x, cylinders 1.4x, wedges and boxes 0.85x the data's;
+    # bench/topple_inputs.py --split train).
     prior_lever: bool = False
     # A head that estimates the centre of mass from the cloud (relative to its centroid, in C): the start of a
     # roll-out when only one side of the object is seen.

@@ -59,8 +59,8 @@ class TrainConfig:
     grad_clip: Optional[float] = None  # max gradient norm; None = no clipping (paper)
     rollout_fraction: float = 0.0  # fraction of batches trained closed-loop (own velocities fed back); paper 0
     # fraction of training windows that start at frame 0, right after the impulse, where every roll-out starts;
-    # the rest start uniformly while the object moves (the paper's windows). Its fast first steps are otherwise
-    # a few % of the training steps (session 14: spins decayed ~15 % a step too fast from there on).
+    # the rest start uniformly while the object moves (the paper's windows), so the fast first steps after the
+    # impulse, which decide most of the turn, are otherwise a small share of the training steps.
     start_fraction: float = 0.0
     lever_lr_scale: float = 1.0  # the learned lever's (model.prior_lever) learning rate over lr
     val_every: int = 1  # epochs between validations (paper: 100 epochs of its much larger data)
@@ -444,8 +444,8 @@ class _Run:
         model_cfg = ModelConfig.from_dict(cfg["model"])
         self.core = DynamicsModel(model_cfg, stats).to(dev)
         self.loss_cfg = LossConfig.from_dict(cfg["loss"])
-        # the learned lever (model.prior_lever) at its own pace: a log factor per object, at the network's rate it
-        # moved 5 % in 5 epochs while the data asked for 0.6-1.2x
+        # the learned lever (model.prior_lever) at its own pace: one linear map to a log factor, which at the
+        # network's rate moves a few % in an epoch
         lever = [p for n, p in self.core.named_parameters() if n.startswith("lever.")]
         rest = [p for n, p in self.core.named_parameters() if not n.startswith("lever.")]
         groups = [{"params": rest}] + ([{"params": lever, "lr": tcfg["lr"] * tcfg["lever_lr_scale"]}] if lever else [])
