@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Three measurements behind the topple head's inputs and the rotation goal (issue 11).
+"""Four measurements behind the topple head's inputs and the rotation goal (issue 11).
 
     .venv/bin/python bench/topple_inputs.py [--checkpoint CKPT] [--data data/pybullet_test] [--split test]
-        [--max-sequences 0] [--samplings 50]
+        [--max-sequences 0] [--samplings 50] [--loss-sensitivity]
 
 1. Descriptor density: a 10 cm cube sampled `--samplings` times with 128 and with 1024 random surface points
    (trimesh, seeds 0..): the distance from its corners to the nearest sampled point, and its tilt barriers toward
@@ -20,11 +20,17 @@
    category (its first 150 pushes, steps spinning over 2 rad/s) the predicted and the model's prior's (mu g / r,
    times the learned lever where the model has one) against the true. Over 1 the network stops the spin too
    soon, whatever the roll-out does with it.
+4. Loss sensitivity (with --data and --loss-sensitivity, on --split; train: the loss the model was trained on):
+   the network's residual on the spin's change (its d_angvel_z output over the prior) scaled 0.8x / 1x / 1.2x,
+   on 2048 fixed random training windows of the checkpoint's window length: every weighted term of the
+   checkpoint's own loss, teacher-forced and closed-loop, and the teacher-forced deceleration (spin over 2 rad/s)
+   against the data's. How much the training loss sees the spin's deceleration at all.
 Prints all; the last line is one JSON object: corner_gap_cm {128, 1024}, barrier_ratio {128, 1024} (median and
 p90 of |barrier / exact - 1|), and with --data rotation {n, error_median_deg, yaw_median_deg, tilt_median_deg,
 true_turn_median_deg, worst: {shape: median deg}, by_spin: {bin: {n, error_median_deg, turn_ratio_median}},
 spin_decel: {by_spin: {bin: {steps, true_mean, pred_mean, ratio}}, by_category: {category: {steps, true_mean,
-pred_ratio, prior_ratio}}} (rad/s per step)}.
+pred_ratio, prior_ratio}}} (rad/s per step)}, and with --loss-sensitivity loss_sensitivity {scale: {teacher_forced:
+{term: weighted loss}, closed_loop: {...}, decel_ratio}}.
 """
 from __future__ import annotations
 
@@ -191,6 +197,68 @@ def rotation(checkpoint: str, data: str, split: str = "test", max_sequences: int
     return out
 
 
+def loss_sensitivity(checkpoint: str, data: str, split: str, windows: int = 2048,
+                     scales: tuple = (0.8, 1.0, 1.2)) -> dict:
+    """How much the training loss (the checkpoint's own loss config) sees the spin's deceleration: the network's
+    residual on the spin's change (its output d_angvel_z, over the prior) scaled by each of `scales`, on
+    `windows` fixed random training windows of the split, teacher-forced and closed-loop: each weighted term, and
+    the teacher-forced deceleration over 2 rad/s against the data's."""
+    import copy
+
+    import torch
+
+    from physdyn_ros.learn.checkpoint import load_checkpoint, load_model
+    from physdyn_ros.learn.losses import LossConfig
+    from physdyn_ros.learn.train import batch_loss, resolve_config
+    from physdyn_ros.learn.windows import load_sims, make_windows, random_starts
+
+    torch.set_num_threads(1)
+    base, _ = load_model(checkpoint)
+    stored = load_checkpoint(checkpoint)["config"]  # its loss and window (a head's fit adds other sections)
+    cfg = resolve_config({k: stored.get(k) for k in ("model", "loss", "train", "data")})
+    loss_cfg, window = LossConfig.from_dict(cfg["loss"]), int(cfg["train"]["window"])
+    sims = load_sims(data, [split])
+    index = np.sort(np.random.default_rng(0).choice(len(sims), min(windows, len(sims)), replace=False))
+    starts = random_starts(sims, index, window, np.random.default_rng(1))
+    batches = [make_windows(sims, index[i:i + 256], starts[i:i + 256], window, base.cfg.num_points, None)
+               for i in range(0, len(index), 256)]
+    weights = {"vel": loss_cfg.w_vel, "angvel": loss_cfg.w_angvel, "pos": loss_cfg.w_pos, "rot": loss_cfg.w_rot,
+               "abs": loss_cfg.w_abs, "total": 1.0}
+    out: dict = {}
+    for scale in scales:
+        model = copy.deepcopy(base).eval()
+        with torch.no_grad():  # the residual's d_angvel_z: the recurrent head's row and the input skip's
+            model.head.weight[5] *= scale
+            model.head.bias[5] *= scale
+            if model.skip is not None:
+                model.skip.weight[5] *= scale
+        row: dict = {}
+        pred, true, spin = [], [], []
+        with torch.no_grad():
+            for mode, feedback in (("teacher_forced", False), ("closed_loop", True)):
+                sums: dict = {}
+                for batch in batches:
+                    _, parts = batch_loss(model, model, batch, loss_cfg, feedback)
+                    for k in weights:
+                        sums[k] = sums.get(k, 0.0) + weights[k] * float(parts[k]) / len(batches)
+                row[mode] = {k: round(v, 5) for k, v in sums.items()}
+            for batch in batches:
+                raw = model.teacher_forced(model.encode(batch["cloud"]), batch["vel"][:, :-1], batch["angvel"][:, :-1])
+                pred.append(model.denormalize(raw)["d_angvel"][..., 2])
+                true.append(batch["d_angvel"][..., 2])
+                spin.append(batch["angvel"][:, :-1, 2])
+        p, t, w = (torch.cat(a).numpy().ravel() for a in (pred, true, spin))
+        m = np.abs(w) > 2.0
+        row["decel_ratio"] = round(float(np.mean(-p[m] * np.sign(w[m])) / np.mean(-t[m] * np.sign(w[m]))), 3)
+        out[f"{scale:g}"] = row
+    print(f"loss sensitivity ({data} {split}, {len(index)} windows): the residual on the spin's change scaled by "
+          + ", ".join(f"{k}: deceleration {v['decel_ratio']}x the data's" for k, v in out.items()))
+    for mode in ("teacher_forced", "closed_loop"):
+        for term in weights:
+            print(f"  {mode:14s} {term:6s} " + "  ".join(f"{out[k][mode][term]:.4f}" for k in out))
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=str(ROOT / "physdyn_ros" / "models" / "default.pt"))
@@ -199,12 +267,16 @@ def main() -> int:
                     help="its split (train: how the model fits the pushes it was trained on)")
     ap.add_argument("--max-sequences", type=int, default=0, help="a fixed random subset of the split (0: all)")
     ap.add_argument("--samplings", type=int, default=50)
+    ap.add_argument("--loss-sensitivity", action="store_true",
+                    help="with --data: how much the training loss sees the spin's deceleration (on --split)")
     args = ap.parse_args()
     if args.samplings < 1 or args.max_sequences < 0:
         ap.error("--samplings must be >= 1 and --max-sequences >= 0")
     result = density(args.samplings)
     if args.data:
         result["rotation"] = rotation(args.checkpoint, args.data, args.split, args.max_sequences)
+        if args.loss_sensitivity:
+            result["loss_sensitivity"] = loss_sensitivity(args.checkpoint, args.data, args.split)
     print(json.dumps(result))
     return 0
 
