@@ -163,3 +163,4 @@ def test_spin_term_weighs_the_z_parts_alone():
     target[0, 1, 11] = 0.25  # and turns 0.25 it does not
     raw[0, :, 3:5] = 3.0  # large wobble errors leave the term alone
     assert_optional_term(raw, target, "spin", 4.0, (0.5 + 0.25) / 2)
+    assert_optional_term(raw, target, "spin_sq", 4.0, (0.5 ** 2 + 0.25 ** 2) / 2)  # its minimum: the mean

@@ -10,7 +10,8 @@ then
     L     = w_v L_v + w_w L_w + w_p L_p + w_rot L_rot + w_cls L_cls   (paper: all 1, w_cls = 2)
     (+ w_abs L_abs, the absolute error in normalised units; off by default)
     (+ w_cum L_cum, the error of the pose accumulated from the window's start; off by default)
-    (+ w_spin L_spin, the absolute error of the spin's change and the turn about z; off by default)
+    (+ w_spin L_spin, the absolute error of the spin's change and the turn about z, and w_spin_sq the squared
+     one; off by default)
 
 Relative errors weigh a slow object's small increments as much as a fast one's large ones (the paper's
 reason). The original had no eps, so a resting object (both vectors exactly 0) gave 0/0 = NaN; with eps the
@@ -59,6 +60,10 @@ class LossConfig:
     # d_angvel and d_rot, normalised units, L1): inside the vector losses the spin's deceleration is a small part
     # of |d_angvel|, whose tilt parts (wobble) dominate.
     w_spin: float = 0.0
+    # w_spin_sq: the same z parts' squared error, whose minimum is the mean: the turn adds up the spin's mean
+    # deceleration, and the other terms' minimum in that direction is not it (bench/topple_inputs.py
+    # --loss-sensitivity).
+    w_spin_sq: float = 0.0
     # Models with a centre-of-mass head (model.com_head): w_com * the L2 error of the estimate in cloud-scale units.
     w_com: float = 1.0
 
@@ -70,7 +75,7 @@ class LossConfig:
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")
         if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs, cfg.w_com,
-                               cfg.w_cum, cfg.w_spin) < 0:
+                               cfg.w_cum, cfg.w_spin, cfg.w_spin_sq) < 0:
             raise ValueError("loss.eps must be > 0 and the loss weights >= 0")
         return cfg
 
@@ -122,6 +127,8 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
                            + torch.cumsum(diff[..., 9:12], dim=-2).abs().sum(-1))
     if cfg.w_spin > 0:
         per_step["spin"] = (raw[..., 5] - target[..., 5]).abs() + (raw[..., 11] - target[..., 11]).abs()
+    if cfg.w_spin_sq > 0:
+        per_step["spin_sq"] = (raw[..., 5] - target[..., 5]) ** 2 + (raw[..., 11] - target[..., 11]) ** 2
     per_step["topple"] = F.binary_cross_entropy_with_logits(raw[..., 12], topple.to(raw.dtype), reduction="none")
     if mask is None:
         means = {k: v.mean() for k, v in per_step.items()}
@@ -137,6 +144,8 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
         total = total + cfg.w_cum * means["cum"]
     if cfg.w_spin > 0:
         total = total + cfg.w_spin * means["spin"]
+    if cfg.w_spin_sq > 0:
+        total = total + cfg.w_spin_sq * means["spin_sq"]
     parts = {k: v.detach() for k, v in means.items()}
     parts["total"] = total.detach()
     return total, parts
