@@ -149,7 +149,7 @@ def rotation(checkpoint: str, data: str, split: str = "test", max_sequences: int
     model, _ = load_model(checkpoint)
     sims = load_sims(data, [split])
     index = np.arange(len(sims))
-    if 0 < max_sequences < len(index):  # a fixed random subset: every category keeps its share
+    if 0 < max_sequences < len(index):  # a fixed random subset (each category keeps its share on average)
         index = np.sort(np.random.default_rng(0).choice(index, max_sequences, replace=False))
     traj = model_rollouts(model, sims, index, 60)
     keep = sims.topple_index[index] < 0
@@ -222,8 +222,11 @@ def loss_sensitivity(checkpoint: str, data: str, split: str, windows: int = 2048
     starts = random_starts(sims, index, window, np.random.default_rng(1))
     batches = [make_windows(sims, index[i:i + 256], starts[i:i + 256], window, base.cfg.num_points, None)
                for i in range(0, len(index), 256)]
-    weights = {"vel": loss_cfg.w_vel, "angvel": loss_cfg.w_angvel, "pos": loss_cfg.w_pos, "rot": loss_cfg.w_rot,
-               "abs": loss_cfg.w_abs, "total": 1.0}
+    if base.cfg.cell != "lstm":
+        raise ValueError("--loss-sensitivity scales the recurrent head's output: an LSTM model is needed")
+    # every weighted term the loss config switches on (the per-step loss names are the w_<name> keys), and the total
+    weights = {k[2:]: float(v) for k, v in loss_cfg.to_dict().items() if k.startswith("w_") and float(v) > 0}
+    weights["total"] = 1.0
     out: dict = {}
     for scale in scales:
         model = copy.deepcopy(base).eval()
@@ -240,7 +243,8 @@ def loss_sensitivity(checkpoint: str, data: str, split: str, windows: int = 2048
                 for batch in batches:
                     _, parts = batch_loss(model, model, batch, loss_cfg, feedback)
                     for k in weights:
-                        sums[k] = sums.get(k, 0.0) + weights[k] * float(parts[k]) / len(batches)
+                        if k in parts:  # com only with a centre-of-mass head
+                            sums[k] = sums.get(k, 0.0) + weights[k] * float(parts[k]) / len(batches)
                 row[mode] = {k: round(v, 5) for k, v in sums.items()}
             for batch in batches:
                 raw = model.teacher_forced(model.encode(batch["cloud"]), batch["vel"][:, :-1], batch["angvel"][:, :-1])
@@ -249,13 +253,14 @@ def loss_sensitivity(checkpoint: str, data: str, split: str, windows: int = 2048
                 spin.append(batch["angvel"][:, :-1, 2])
         p, t, w = (torch.cat(a).numpy().ravel() for a in (pred, true, spin))
         m = np.abs(w) > 2.0
-        row["decel_ratio"] = round(float(np.mean(-p[m] * np.sign(w[m])) / np.mean(-t[m] * np.sign(w[m]))), 3)
+        td = float(np.mean(-t[m] * np.sign(w[m]))) if m.any() else 0.0
+        row["decel_ratio"] = round(float(np.mean(-p[m] * np.sign(w[m]))) / td, 3) if td > 0 else None
         out[f"{scale:g}"] = row
     print(f"loss sensitivity ({data} {split}, {len(index)} windows): the residual on the spin's change scaled by "
           + ", ".join(f"{k}: deceleration {v['decel_ratio']}x the data's" for k, v in out.items()))
     for mode in ("teacher_forced", "closed_loop"):
-        for term in weights:
-            print(f"  {mode:14s} {term:6s} " + "  ".join(f"{out[k][mode][term]:.4f}" for k in out))
+        for term in next(iter(out.values()))[mode]:
+            print(f"  {mode:14s} {term:7s} " + "  ".join(f"{out[k][mode][term]:.4f}" for k in out))
     return out
 
 

@@ -13,11 +13,12 @@ So a network whose residual is zero (the zero-initialised head) starts as the an
 (learn/baselines.analytic_sliding; test_prior.py checks that stepping this prior reproduces it).
 
 model.prior coupled (session 8): one friction budget for sliding and spinning, the ellipsoidal limit surface
-of a contact patch (Goyal et al. 1991; Lynch et al. 1992): with s = |v_xy| and the lever r = (mu g) / (spin
-deceleration), the speed decreases by mu g s / |(s, r w_z)| per second and the spin by (mu g / r) r |w_z| /
-|(s, r w_z)|. Pure sliding and pure spinning are unchanged; an object that slides while it turns keeps turning
-(the decoupled prior stopped a 3.2 rad/s spin of an object sliding at 1 m/s within one step, pybullet kept 2.9
-rad/s: bench_planning's first pushes turned 1-5x what the model predicted), and one that spins drifts on.
+of a contact patch (Goyal et al. 1991; Lynch et al. 1992): with s = |v_xy| and the lever r = k (mu g) / (spin
+deceleration) (k = 1; model.prior_lever's f^2, see sliding_step), the speed decreases by mu g s / |(s, r w_z)|
+per second and the spin by (spin deceleration) r |w_z| / |(s, r w_z)|. Pure sliding and pure spinning are
+unchanged; an object that slides while it turns keeps turning (the decoupled prior stopped a 3.2 rad/s spin of
+an object sliding at 1 m/s within one step, pybullet kept 2.9 rad/s: bench_planning's first pushes turned 1-5x
+what the model predicted), and one that spins drifts on.
 """
 from __future__ import annotations
 

@@ -398,7 +398,8 @@ def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
         base = load_checkpoint(init, map_location="cpu")
         if not _same_weights(base["config"].get("model") or {}, cfg["model"]):
             raise CheckpointError(f"--init {init}: its model config differs from the requested one (only the "
-                                  "prior's kind, sliding or coupled, and its friction may change in a fine-tune)")
+                                  "prior's kind, sliding or coupled, and its friction may change in a fine-tune, "
+                                  "and a learned lever, model.prior_lever, may be added)")
     return ckpt, base
 
 
