@@ -32,6 +32,8 @@ from torch import Tensor
 
 from .sections import known_keys
 
+#: Terms beyond the paper's, each on when its weight w_<name> is > 0.
+OPTIONAL_TERMS = ("abs", "cum", "spin", "spin_sq")
 #: (name, slice of the 12 normalised increments)
 COMPONENTS = (("vel", slice(0, 3)), ("angvel", slice(3, 6)), ("pos", slice(6, 9)), ("rot", slice(9, 12)))
 
@@ -74,8 +76,7 @@ class LossConfig:
         cfg = cls(**values)
         if cfg.relative_to not in ("both", "target"):
             raise ValueError(f"loss.relative_to must be 'both' or 'target', got {cfg.relative_to!r}")
-        if cfg.eps <= 0 or min(cfg.w_vel, cfg.w_angvel, cfg.w_pos, cfg.w_rot, cfg.w_topple, cfg.w_abs, cfg.w_com,
-                               cfg.w_cum, cfg.w_spin, cfg.w_spin_sq) < 0:
+        if cfg.eps <= 0 or min(v for k, v in asdict(cfg).items() if k.startswith("w_")) < 0:
             raise ValueError("loss.eps must be > 0 and the loss weights >= 0")
         return cfg
 
@@ -125,10 +126,12 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
             diff = diff * mask.to(raw.dtype)[..., None]
         per_step["cum"] = (safe_l2(torch.cumsum(diff[..., 6:9], dim=-2))
                            + torch.cumsum(diff[..., 9:12], dim=-2).abs().sum(-1))
-    if cfg.w_spin > 0:
-        per_step["spin"] = (raw[..., 5] - target[..., 5]).abs() + (raw[..., 11] - target[..., 11]).abs()
-    if cfg.w_spin_sq > 0:
-        per_step["spin_sq"] = (raw[..., 5] - target[..., 5]) ** 2 + (raw[..., 11] - target[..., 11]) ** 2
+    if cfg.w_spin > 0 or cfg.w_spin_sq > 0:
+        spin = raw[..., [5, 11]] - target[..., [5, 11]]  # the z parts of d_angvel and d_rot
+        if cfg.w_spin > 0:
+            per_step["spin"] = spin.abs().sum(-1)
+        if cfg.w_spin_sq > 0:
+            per_step["spin_sq"] = (spin * spin).sum(-1)
     per_step["topple"] = F.binary_cross_entropy_with_logits(raw[..., 12], topple.to(raw.dtype), reduction="none")
     if mask is None:
         means = {k: v.mean() for k, v in per_step.items()}
@@ -138,14 +141,9 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
         means = {k: (v * w).sum() / denom for k, v in per_step.items()}
     total = (cfg.w_vel * means["vel"] + cfg.w_angvel * means["angvel"] + cfg.w_pos * means["pos"]
              + cfg.w_rot * means["rot"] + cfg.w_topple * means["topple"])
-    if cfg.w_abs > 0:
-        total = total + cfg.w_abs * means["abs"]
-    if cfg.w_cum > 0:
-        total = total + cfg.w_cum * means["cum"]
-    if cfg.w_spin > 0:
-        total = total + cfg.w_spin * means["spin"]
-    if cfg.w_spin_sq > 0:
-        total = total + cfg.w_spin_sq * means["spin_sq"]
+    for name in OPTIONAL_TERMS:  # present exactly when their weight is > 0
+        if name in means:
+            total = total + getattr(cfg, f"w_{name}") * means[name]
     parts = {k: v.detach() for k, v in means.items()}
     parts["total"] = total.detach()
     return total, parts

@@ -269,8 +269,6 @@ class WindowDataset(torch.utils.data.Dataset):
                  partial: float = 0.0, noise: float = 0.0, from_impulse: float = 0.0) -> None:
         if not 0.0 <= partial <= 1.0 or noise < 0:
             raise ValueError(f"partial must be in [0, 1] and noise >= 0, got {partial}, {noise}")
-        if not 0.0 <= from_impulse <= 1.0:
-            raise ValueError(f"from_impulse must be in [0, 1], got {from_impulse}")
         self.partial, self.noise, self.from_impulse = float(partial), float(noise), float(from_impulse)
         if window < 2:
             raise ValueError("window must be >= 2 frames")
