@@ -2,7 +2,7 @@
 """How predictable is a push's final pose at all? The data's own simulator, re-run (issue 11's rotation goal).
 
     .venv/bin/python bench/predictability.py [--data data/pybullet_test] [--categories C ...] [--max-sequences 400]
-        [--speed-error 0.02] [--checkpoint CKPT]
+        [--speed-error 0.02] [--checkpoint CKPT] [--vhacd-resolution 0]
 
 On the same test pushes `physdyn evaluate --max-sequences N` takes (evenly spaced over the test split), each push
 is simulated again with the dataset's own shape (rebuilt from the manifest: the same mesh, convex decomposition,
@@ -11,6 +11,10 @@ impulse), three ways:
   * replay: exactly that state;
   * push +/- e: the initial linear and angular velocities scaled by 1 + e and 1 - e (a push measured to within
     e; default 2 %);
+  * another decomposition (--vhacd-resolution R, e.g. 100000): exactly that state, the same mesh decomposed by
+    V-HACD at R voxels instead of the generator's (200,000): how much the final pose depends on the simulator's
+    approximation of a concave mesh, which no cloud shows (procedural shapes with their own convex pieces and
+    convex shapes are unchanged);
 and the checkpoint's roll-outs (physdyn evaluate's) for reference. Over the recorded pushes that do not topple:
 the final (60 steps, 4 s) position and rotation differences from the recording, median and p90.
 Also, over all the test split's pushes that do not topple and keep spinning (|w_z| > 1 rad/s) for at least four
@@ -22,7 +26,7 @@ The spread between the recording and a replay or a 2 % different push is the par
 predictor reading the cloud and a measured push can be expected to recover.
 Prints a table; the last line is one JSON object {n, replay: {pos_median_cm, pos_p90_cm, rot_median_deg,
 rot_p90_deg}, push_plus: {...}, push_minus: {...}, model: {...}, speed_error, spin_decel: {n, prior: {ratio_median,
-std_log, corr_log}, contact: {...}}}.
+std_log, corr_log}, contact: {...}}}, with replay_vhacd: {...} and vhacd_resolution under --vhacd-resolution.
 """
 from __future__ import annotations
 
@@ -82,12 +86,17 @@ def spin_deceleration(sims) -> dict:
     return out
 
 
-def resimulate(sims, index: np.ndarray, shapes: list, factor: float) -> tuple[np.ndarray, np.ndarray]:
+def resimulate(sims, index: np.ndarray, shapes: list, factor: float,
+               vhacd_resolution: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Final (HORIZON) positions and orientations of the pushes `index` re-simulated with their own shapes
-    (`shapes`: the dataset's, in manifest order)."""
+    (`shapes`: the dataset's, in manifest order); vhacd_resolution > 0: concave meshes decomposed at that
+    resolution instead of the generator's."""
     from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
 
-    config = SimConfig(**sims.manifest["generator"]["sim"])  # the generator's physics (decompositions are cached)
+    physics = dict(sims.manifest["generator"]["sim"])  # the generator's physics (decompositions are cached)
+    if vhacd_resolution > 0:
+        physics["vhacd_resolution"] = int(vhacd_resolution)
+    config = SimConfig(**physics)
     pos, quat = [], []
     with Simulator(config) as sim:
         for i in index:
@@ -110,9 +119,14 @@ def main() -> int:
     ap.add_argument("--max-sequences", type=int, default=400)
     ap.add_argument("--speed-error", type=float, default=0.02, help="relative error of the measured push")
     ap.add_argument("--checkpoint", default=str(ROOT / "physdyn_ros" / "models" / "default.pt"))
+    ap.add_argument("--vhacd-resolution", type=int, default=0,
+                    help="also replay with concave meshes decomposed at this V-HACD resolution (0: not)")
     args = ap.parse_args()
     if not 0.0 < args.speed_error < 0.5:
         raise SystemExit(f"--speed-error must be in (0, 0.5), got {args.speed_error}")
+    if args.vhacd_resolution and not 10_000 <= args.vhacd_resolution <= 64_000_000:
+        raise SystemExit(f"--vhacd-resolution must be 0 or in 10000..64000000 (V-HACD's range), got "
+                         f"{args.vhacd_resolution}")
     import torch
 
     from physdyn_ros.learn.checkpoint import load_model
@@ -133,6 +147,10 @@ def main() -> int:
     for name, factor in (("replay", 1.0), ("push_plus", 1.0 + args.speed_error),
                          ("push_minus", 1.0 - args.speed_error)):
         out[name] = final_errors(*resimulate(sims, index, shapes, factor), true_pos, true_quat)
+    if args.vhacd_resolution:
+        out["replay_vhacd"] = final_errors(*resimulate(sims, index, shapes, 1.0, args.vhacd_resolution), true_pos,
+                                           true_quat)
+        out["vhacd_resolution"] = args.vhacd_resolution
     sim_s = time.perf_counter() - t0
     model, _ = load_model(args.checkpoint)
     traj = model_rollouts(model, sims, index, HORIZON)
@@ -143,7 +161,10 @@ def main() -> int:
     for name, label in (("replay", "the same simulator, same shape, same state"),
                         ("push_plus", f"the same, push +{args.speed_error:.0%}"),
                         ("push_minus", f"the same, push -{args.speed_error:.0%}"),
+                        ("replay_vhacd", f"the same state, V-HACD at {args.vhacd_resolution} voxels"),
                         ("model", f"model {Path(args.checkpoint).name}")):
+        if name not in out:
+            continue
         e = out[name]
         print(f"| {label} | {e['pos_median_cm']} / {e['pos_p90_cm']} | {e['rot_median_deg']} / {e['rot_p90_deg']} |")
     out["spin_decel"] = spin_deceleration(sims)

@@ -90,7 +90,7 @@ def main() -> int:
         return sims, index
 
     sims, index = pushes(args.data, "test", args.max_sequences, args.categories)
-    grid = error_curves(model, sims, index, noise=0.0).T  # (len(GRID), n)
+    grid = error_curves(model, sims, index, noise=0.0)[0].T  # rotation errors (len(GRID), n)
     one = int(np.argmin(np.abs(GRID - 1.0)))
     spin0 = np.abs(sims.ang_vel[index, 0, 2])
     shapes = np.asarray(sims.shape_id[index]).astype(str)

@@ -92,7 +92,7 @@ def fitted(tmp_path_factory):
     save_checkpoint(src, model=model, config=cfg, dataset={}, include_rng=False)
     out = tmp / "fitted.pt"
     args = argparse.Namespace(checkpoint=str(src), data=[str(tiny_dataset())], out=str(out), max_train=60, max_val=20,
-                              partial=0.5, epochs=40, seed=0, threads=1)
+                              partial=0.5, epochs=40, seed=0, threads=1, position_weight=1.0)
     assert spin_fit.run(args) == 0
     return src, out
 
