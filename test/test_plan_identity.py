@@ -1,0 +1,196 @@
+"""The planner's plans stay bit-identical: fixed requests, recorded answers (test/fixtures/plans.json).
+
+Each case plans one push (or expects a refusal) with a fresh planner under a time budget too large to bind, so
+the search is a pure function of the request: every float of the plan (impulse, contact point, velocities,
+predicted rest pose and errors, topple probabilities, spread), the search's counts, a digest of the predicted
+trajectory, and every refusal's message must match the recording exactly. Restructuring code (planning/,
+shapes/, the roll-out kernels of learn/) must not move a bit; a change that means to change plans regenerates
+the recording on purpose:
+
+    PHYSDYN_REGEN_FIXTURES=1 .venv/bin/python -m pytest -q test/test_plan_identity.py
+
+The models: the closed-form sliding model (numpy only) and the shipped learned model (its roll-out kernels on
+CPU, torch held to one thread so that the float32 reductions run in one order). The clouds: a box and shapes of
+the procedural catalogue (a paper category and new families), so the shapes package is pinned too.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+
+from physdyn_ros.planning import (AnalyticSlidingModel, Goal, PlannerConfig, PlanningError, Pose2D, PushPlan,
+                                  PushPlanner, TableBounds)
+
+FIXTURE = Path(__file__).with_name("fixtures") / "plans.json"
+REGENERATE = os.environ.get("PHYSDYN_REGEN_FIXTURES") == "1"
+
+#: The search's own limits; the time budget never binds (an hour), so timing cannot change a plan.
+BASE = PlannerConfig(time_budget=3600.0, samples=48, max_iterations=3, seed=0)
+
+
+def box_cloud(center=(0.0, 0.0), half=(0.05, 0.04, 0.03), n: int = 400, seed: int = 0) -> np.ndarray:
+    """Points on the faces of an axis-aligned box resting on the table, table frame."""
+    rng = np.random.default_rng(seed)
+    h = np.asarray(half)
+    pts = rng.uniform(-1.0, 1.0, size=(n, 3))
+    axis = rng.integers(0, 3, size=n)
+    pts[np.arange(n), axis] = np.sign(pts[np.arange(n), axis])
+    return pts * h + np.array([center[0], center[1], h[2]])
+
+
+def shape_cloud(category: str, index: int, xy=(0.0, 0.0), yaw: float = 0.0) -> np.ndarray:
+    """The surface samples of a catalogue shape, resting upright at (xy, yaw), table frame."""
+    from physdyn_ros.shapes import make_procedural
+
+    shape = make_procedural(category, index, seed=0)
+    c, s = math.cos(yaw), math.sin(yaw)
+    pts = np.asarray(shape.points, dtype=np.float64) @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return pts + np.array([xy[0], xy[1], -float(shape.vertices[:, 2].min())])
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+def _floats(a: Any) -> list[float]:
+    return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
+
+
+def _record(plan: PushPlan) -> dict[str, Any]:
+    """Everything a plan says, exactly (Python floats round-trip through JSON bit for bit); not its wall time."""
+    t = plan.trajectory
+    return {
+        "impulse": _floats(plan.impulse), "contact_point": _floats(plan.contact_point),
+        "lin_vel": _floats(plan.lin_vel), "ang_vel": _floats(plan.ang_vel), "mass": float(plan.mass),
+        "offset": float(plan.offset), "contact_height": float(plan.contact_height),
+        "final_pose": [plan.final_pose.x, plan.final_pose.y, plan.final_pose.yaw],
+        "final_position": _floats(plan.final_position), "position_error": float(plan.position_error),
+        "yaw_error": float(plan.yaw_error), "topple_probability": float(plan.topple_probability),
+        "robust_topple_probability": float(plan.robust_topple_probability), "spread": float(plan.spread),
+        "within_tolerance": bool(plan.within_tolerance), "iterations": int(plan.iterations),
+        "rollouts": int(plan.rollouts), "horizon": int(plan.horizon), "body_source": plan.body_source,
+        "trajectory": _digest(t.positions, t.orientations, t.lin_vels, t.ang_vels, t.topple_prob),
+        # the message ends with the wall time ("... in 12 ms"): compare what comes before it
+        "message": plan.message.rsplit(" roll-outs in ", 1)[0],
+    }
+
+
+# ------------------------------------------------------------------------------------------------- the cases
+def _analytic() -> AnalyticSlidingModel:
+    return AnalyticSlidingModel(friction=0.5)
+
+
+def _shipped() -> Any:
+    from physdyn_ros.predictor import Predictor
+
+    return Predictor.load()
+
+
+#: name -> (model factory, request). A request: shape (cloud or "code" for the shape code of the cloud), start,
+#: goal, config, mass.
+Case = tuple[Callable[[], Any], dict[str, Any]]
+CASES: dict[str, Case] = {
+    "sliding_box_yaw_goal": (_analytic, dict(cloud=box_cloud(), start=(0.0, 0.0, 0.0),
+                                             goal=Goal(Pose2D(0.18, 0.06, 0.5), 0.02, math.radians(10)))),
+    "sliding_box_any_yaw_no_robust_check": (_analytic, dict(
+        cloud=box_cloud(center=(0.1, -0.05), seed=2), start=(0.1, -0.05, 0.0),
+        goal=Goal(Pose2D(-0.05, 0.1, 0.0), 0.02, math.pi), config=replace(BASE, robust_candidates=0, seed=2))),
+    "sliding_bottle": (_analytic, dict(cloud=shape_cloud("bottle", 3, (0.05, 0.0), 0.4), start=(0.05, 0.0, 0.4),
+                                       goal=Goal(Pose2D(0.2, -0.1, 0.0), 0.02, math.radians(15)), mass=0.4)),
+    "sliding_prism_family": (_analytic, dict(cloud=shape_cloud("prism", 2), start=(0.0, 0.0, 0.0),
+                                             goal=Goal(Pose2D(0.0, 0.2, -0.8), 0.03, math.radians(20)))),
+    "sliding_already_there": (_analytic, dict(cloud=box_cloud(center=(0.1, 0.1)), start=(0.1, 0.1, 0.2),
+                                              goal=Goal(Pose2D(0.105, 0.1, 0.2)))),
+    "refused_unreachable": (_analytic, dict(cloud=box_cloud(), start=(0.0, 0.0, 0.0),
+                                            goal=Goal(Pose2D(3.0, 0.0, 0.0)), config=replace(BASE, table=None))),
+    "refused_start_off_table": (_analytic, dict(cloud=box_cloud(), start=(0.0, 0.0, 0.0),
+                                                goal=Goal(Pose2D(0.2, 0.0, 0.0)),
+                                                config=replace(BASE, table=TableBounds(0.1, 1.0, -1.0, 1.0)))),
+    "refused_no_contact_height": (_analytic, dict(cloud=box_cloud(), start=(0.0, 0.0, 0.0),
+                                                  goal=Goal(Pose2D(0.2, 0.0, 0.0)),
+                                                  config=replace(BASE, min_contact_height=0.2,
+                                                                 max_contact_height=0.3))),
+    "refused_too_fast_spin": (_analytic, dict(cloud=box_cloud(half=(0.03, 0.03, 0.03)), start=(0.0, 0.0, 0.0),
+                                              goal=Goal(Pose2D(0.1, 0.05, 2.5), 0.02, math.radians(5)),
+                                              config=replace(BASE, max_spin=0.05, robust_candidates=0))),
+    "learned_box_yaw_goal": (_shipped, dict(cloud=box_cloud(), start=(0.0, 0.0, 0.0),
+                                            goal=Goal(Pose2D(0.15, 0.05, 0.3), 0.02, math.radians(10)))),
+    "learned_mug_any_yaw": (_shipped, dict(cloud=shape_cloud("mug", 1, (-0.1, 0.05), 1.0), start=(-0.1, 0.05, 1.0),
+                                           goal=Goal(Pose2D(0.1, 0.0, 0.0), 0.03, math.pi),
+                                           config=replace(BASE, seed=5))),
+    "learned_shape_code_box": (_shipped, dict(cloud=box_cloud(half=(0.04, 0.03, 0.05), seed=3), code=True,
+                                              start=(0.0, 0.0, 0.0),
+                                              goal=Goal(Pose2D(0.2, -0.05, 0.0), 0.02, math.pi))),
+    "learned_refused_topple": (_shipped, dict(cloud=box_cloud(half=(0.02, 0.02, 0.12), seed=4),
+                                              start=(0.0, 0.0, 0.0), goal=Goal(Pose2D(0.3, 0.0, 0.0), 0.02, math.pi),
+                                              config=replace(BASE, min_contact_height=0.1))),
+    "learned_box_refined": (_shipped, dict(cloud=box_cloud(seed=6), start=(0.0, 0.0, 0.0),
+                                           goal=Goal(Pose2D(0.12, -0.08, -0.4), 0.02, math.radians(10)),
+                                           config=replace(BASE, refine_steps=3))),
+}
+
+
+def run_case(model: Any, request: dict[str, Any]) -> dict[str, Any]:
+    """The recorded answer to one request: the plan's record, or the refusal's message."""
+    planner = PushPlanner(model, request.get("config", BASE))  # fresh: no timing carried over between cases
+    cloud = request["cloud"]
+    shape = model.encode(cloud) if request.get("code") else cloud
+    try:
+        plan = planner.plan(shape, request["start"], request["goal"], cloud=None, mass=request.get("mass"))
+    except PlanningError as exc:
+        return {"refused": str(exc)}
+    return {"plan": _record(plan)}
+
+
+@pytest.fixture(scope="module")
+def answers() -> dict[str, dict[str, Any]]:
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one reduction order for the float32 roll-outs; restored for the other tests
+    try:
+        models: dict[Callable[[], Any], Any] = {}
+        out = {}
+        for name, (factory, request) in CASES.items():
+            if factory not in models:
+                models[factory] = factory()
+            out[name] = run_case(models[factory], request)
+        return out
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_plans_are_bit_identical(answers):
+    if REGENERATE:
+        FIXTURE.write_text(json.dumps(answers, indent=1, sort_keys=True) + "\n")
+        pytest.skip(f"regenerated {FIXTURE.name} ({len(answers)} cases)")
+    recorded = json.loads(FIXTURE.read_text())
+    assert sorted(recorded) == sorted(CASES), "the cases and the recording differ: regenerate on purpose"
+    differ = []
+    for name, want in recorded.items():
+        got = answers[name]
+        if got != want:
+            keys = sorted(k for k in {**want.get("plan", {}), **got.get("plan", {})}
+                          if want.get("plan", {}).get(k) != got.get("plan", {}).get(k))
+            differ.append(f"{name}: {keys or (want, got)}")
+    assert not differ, "plans changed:\n" + "\n".join(differ)
+
+
+def test_the_cases_cover_plans_and_refusals():
+    """The recording holds plans of both models and refusals of several kinds (not only one path)."""
+    recorded = json.loads(FIXTURE.read_text())
+    plans = [n for n, a in recorded.items() if "plan" in a]
+    refusals = [a["refused"] for a in recorded.values() if "refused" in a]
+    assert any(n.startswith("learned") for n in plans) and any(n.startswith("sliding") for n in plans)
+    assert len(refusals) >= 4 and len(set(refusals)) == len(refusals)
