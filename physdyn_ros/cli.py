@@ -22,7 +22,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("physdyn_ros.sim.generate", "simulate pushes with pybullet and write a dataset"),
     "train": ("physdyn_ros.learn.train", "train the dynamics model on a dataset"),
     "fit-topple": ("physdyn_ros.learn.topple_fit", "fit a checkpoint's whole-push topple head (frozen dynamics)"),
-    "fit-spin": ("physdyn_ros.learn.spin_fit", "fit a checkpoint's spin head (frozen dynamics and topple head)"),
     "evaluate": ("physdyn_ros.learn.evaluate", "evaluate a checkpoint and the baselines on a test split"),
     "predict": ("physdyn_ros.predictor", "roll out a checkpoint for one cloud and initial velocity"),
     "plan": ("physdyn_ros.planning.cli", "plan a push to a goal pose with the model; execute it in pybullet"),

@@ -215,3 +215,33 @@ def test_rotation_increments_are_world_fixed():
         np.linalg.norm(inc["d_rot"], axis=-1) > 0.05)
     rel = np.linalg.norm(inc["d_rot"] - approx, axis=-1)[moving] / np.linalg.norm(inc["d_rot"], axis=-1)[moving]
     assert np.median(rel) < 0.2
+
+
+def test_removed_options_load_at_their_off_values_and_are_refused_when_on(tmp_path):
+    """A checkpoint names every option of the code that wrote it: a removed option (learn/sections.RETIRED) at
+    its off value is dropped and the checkpoint loads unchanged; switched on, loading and training refuse it by
+    name."""
+    import copy
+
+    from physdyn_ros.learn.checkpoint import CheckpointError, load_model
+    from physdyn_ros.learn.sections import ANY, RETIRED
+    from physdyn_ros.learn.train import resolve_config
+
+    path = random_checkpoint(tmp_path / "new.pt")
+    ckpt = torch.load(path, weights_only=True)
+    want, _ = load_model(path)
+    for (section, key), (off, _) in RETIRED.items():
+        old = copy.deepcopy(ckpt)
+        old["config"][section][key] = 3 if off is ANY else off
+        torch.save(old, tmp_path / "old.pt")
+        model, _ = load_model(tmp_path / "old.pt")
+        assert model.cfg == want.cfg and resolve_config(old["config"]) == resolve_config(ckpt["config"]), key
+        if off is ANY:
+            continue
+        old["config"][section][key] = True if isinstance(off, bool) else off + 1
+        with pytest.raises(ValueError, match=f"{section}.{key} = .* needs"):
+            resolve_config(old["config"])
+        if section == "model":
+            torch.save(old, tmp_path / "on.pt")
+            with pytest.raises(CheckpointError, match=f"model.{key} = .* needs"):
+                load_model(tmp_path / "on.pt")

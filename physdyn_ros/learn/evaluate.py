@@ -73,14 +73,10 @@ def _batches(n: int, size: int):
 @torch.inference_mode()
 def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, horizon: int, steps_in: int = 1,
                    batch_size: int = 256, device: str | torch.device = "cpu", partial: float = 0.0,
-                   noise: float = 0.0, plane_gap: float = 0.0,
-                   spin_scale: Optional[np.ndarray] = None) -> Trajectories:
+                   noise: float = 0.0, plane_gap: float = 0.0) -> Trajectories:
     """Closed-loop roll-outs from frame 0; with steps_in = k, frames 1..k-1 are observed (fed and kept).
     partial / noise: that fraction of the clouds seen as one depth camera's view (fixed views, learn/views.py);
-    plane_gap: the points within that many m of the table removed (windows.above_table); spin_scale (len(index),):
-    a factor per sequence on each step's predicted change of spin about z (DynamicsModel.rollout_raw)."""
-    if spin_scale is not None and np.shape(spin_scale) != (len(index),):
-        raise ValueError(f"spin_scale must have one value per sequence ({len(index)}), got {np.shape(spin_scale)}")
+    plane_gap: the points within that many m of the table removed (windows.above_table)."""
     if steps_in < 1 or steps_in > horizon:
         raise ValueError(f"steps_in must be in 1..{horizon}, got {steps_in}")
     model.eval()
@@ -97,10 +93,8 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         obs_v = seq["vel"][:, 1:1 + k].to(device) if k else None
         obs_w = seq["angvel"][:, 1:1 + k].to(device) if k else None
         feature = model.encode(seq["cloud"].to(device))
-        scale = None if spin_scale is None else torch.as_tensor(np.asarray(spin_scale)[sl], dtype=feature.dtype,
-                                                                device=feature.device)
         rolled = model.rollout(feature, seq["vel"][:, 0].to(device), seq["angvel"][:, 0].to(device), horizon,
-                               obs_v, obs_w, scale)
+                               obs_v, obs_w)
         out = {kk: v.double().cpu().numpy() for kk, v in rolled.items()}
         d_pos, d_rot = out["d_pos"], out["d_rot"]
         if k:  # observed frames keep their true poses

@@ -27,7 +27,6 @@ from ..conventions import GRAVITY
 from .prior import MIN_RADIUS, prior_constants, prior_into, prior_raw
 from .sections import known_keys
 from .support import INPUTS_VERSIONS
-from .spin import SpinHead
 from .topple import ToppleHead
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
@@ -98,10 +97,6 @@ class ModelConfig:
     # inputs version of the topple head (learn/support.py): 1 for heads fitted before the tilt barriers (their
     # checkpoints have no such key); physdyn fit-topple fits support.INPUTS_VERSION (or its --inputs)
     topple_inputs: int = 1
-    # A spin head (learn/spin.py): a per-push factor on each step's predicted change of spin about z from the shape
-    # feature and the initial twist; fitted after the dynamics (`physdyn fit-spin`), 1 at start. Needs model.prior.
-    spin_head: bool = False
-    spin_hidden: int = 64
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 
     def __post_init__(self) -> None:
@@ -119,8 +114,6 @@ class ModelConfig:
             raise ValueError(f"model.prior must be one of {PRIORS}, got {self.prior!r}")
         if self.prior_lever and self.prior == "none":
             raise ValueError("model.prior_lever scales the prior's spin deceleration: it needs model.prior")
-        if self.spin_head and self.prior == "none":
-            raise ValueError("model.spin_head scales the roll-out's spin through the prior: it needs model.prior")
         if self.prior != "none" and not self.geometry:
             raise ValueError(f"model.prior {self.prior} needs model.geometry: true (the lever arm of spin friction)")
         if not 0.0 < float(self.prior_friction) <= 2.0:
@@ -128,7 +121,7 @@ class ModelConfig:
         if int(self.topple_inputs) not in INPUTS_VERSIONS:
             raise ValueError(f"model.topple_inputs must be one of {INPUTS_VERSIONS}, got {self.topple_inputs}")
         for key in ("num_points", "hidden_size", "num_layers", "mlp_layers", "max_horizon", "topple_hidden",
-                    "topple_members", "spin_hidden"):
+                    "topple_members"):
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.{key} must be >= 1, got {getattr(self, key)}")
 
@@ -216,8 +209,6 @@ def _lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], 
         if prior.shape[0] > 0:
             p = prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
             y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
-            if prior.shape[1] > 3:  # the spin head's factor on the step's change of spin about z
-                y = torch.cat([y[:, :5], y[:, 5:6] * prior[:, 3:4], y[:, 6:]], 1)
         outs.append(y)
         if t < x_obs.shape[1]:
             x = x_obs[:, t]
@@ -288,8 +279,6 @@ def _fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tenso
         torch.addmm(b_head, z, w_head, out=y)
         if prior.shape[0] > 0:  # the sliding prior (model.prior), as in _lstm_rollout
             y[:, :12].add_(prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out))
-            if prior.shape[1] > 3:  # the spin head's factor, as in _lstm_rollout
-                y[:, 5].mul_(prior[:, 3])
         if t < observed:
             x.copy_(x_obs[:, t])
         else:
@@ -406,11 +395,8 @@ class DynamicsModel(nn.Module):
         self.lever = nn.Linear(self.feature_dim, 1) if cfg.prior_lever else None
         self.topple = (ToppleHead(self.feature_dim, cfg.topple_hidden, cfg.topple_members, cfg.topple_inputs)
                        if cfg.topple_head else None)
-        self.spin = SpinHead(self.feature_dim, cfg.spin_hidden) if cfg.spin_head else None
         self.register_buffer("scales", torch.ones(len(STAT_KEYS)))
         self._reset_parameters()
-        if self.spin is not None:  # k = 1 until fitted: the roll-outs as without the head
-            self.spin.reset_output()
         if stats is not None:
             self.set_normalization(stats)
         self._cache_key: Optional[tuple] = None
@@ -628,15 +614,11 @@ class DynamicsModel(nn.Module):
 
     def rollout_raw(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                     obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
-                    fast: Optional[dict[str, Any]] = None,
-                    spin_scale: Optional[Tensor] = None) -> tuple[Tensor, Tensor]:
+                    fast: Optional[dict[str, Any]] = None) -> tuple[Tensor, Tensor]:
         """Closed-loop roll-out: raw outputs (B, steps, 13) and normalised inputs used (B, steps + 1, 6).
 
         vel0/angvel0 (B, 3) are the state at frame 0; obs_vel/obs_angvel (B, K, 3) optionally observed states
         of frames 1..K, fed instead of the model's own predictions ("steps in" = K + 1).
-        spin_scale (B,): a factor on each step's predicted change of spin about z (network and prior together,
-        fed back as predicted); needs model.prior. None: the spin head's (model.spin_head), or none. A given one
-        replaces the head's (bench/spin_budget.py and the head's fit pick it by hand).
         LSTM kernels: with autograd on the differentiable _lstm_rollout; without, the same function faster in
         _numpy_lstm_rollout (batch 1, float32 on the CPU) or _fused_lstm_rollout (test/test_rollout_kernels.py).
         """
@@ -649,15 +631,6 @@ class DynamicsModel(nn.Module):
             x_obs = self._inputs(obs_vel, obs_angvel, fast)[:, :steps]
         prior = (torch.stack(self._prior_decel(feature), -1) if self.cfg.prior != "none"
                  else x0.new_zeros(0, 3))
-        if spin_scale is None and self.spin is not None:
-            spin_scale = self.spin(feature, vel0, angvel0)
-        if spin_scale is not None:  # a 4th prior column: the kernels scale the step's d_angvel z by it
-            if self.cfg.prior == "none":
-                raise ValueError("spin_scale needs a model with a prior (model.prior)")
-            scale = spin_scale.to(prior).reshape(-1)
-            if scale.shape[0] != prior.shape[0]:
-                raise ValueError(f"spin_scale has {scale.shape[0]} values for a batch of {prior.shape[0]}")
-            prior = torch.cat([prior, scale[:, None]], 1)
         if self.cfg.cell == "lstm":
             if torch.is_grad_enabled():  # training / gradients: the differentiable kernel
                 w_x = fast["w_x"]
@@ -679,8 +652,6 @@ class DynamicsModel(nn.Module):
             if prior.shape[0] > 0:
                 p = prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], fast["in"], fast["out"])
                 y = y + torch.cat([p, torch.zeros_like(p[:, :1])], 1)
-                if prior.shape[1] > 3:  # spin_scale, as in the LSTM kernels
-                    y = torch.cat([y[:, :5], y[:, 5:6] * prior[:, 3:4], y[:, 6:]], 1)
             outs.append(y)
             x = x_obs[:, t] if t < x_obs.shape[1] else x + y[:, :6] * fast["gain"]
             xs.append(x)
@@ -690,15 +661,13 @@ class DynamicsModel(nn.Module):
     def _numpy_kernel(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarray,
                       steps: int, prior: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
         """Batch 1: feature (1, F), x0 (6,), x_obs (K, 6) float32 -> raw (steps, 13), inputs used (steps + 1, 6).
-        prior: (1, 3) (mu g, spin deceleration, coupling) of the prior (_prior_decel), or (1, 4) with the spin
-        factor (rollout_raw's spin_scale), or None / empty."""
+        prior: (1, 3) (mu g, spin deceleration, coupling) of the prior (_prior_decel), or None / empty."""
         w0 = kernel["np_w0"].copy()  # a private copy: the layer-0 bias row carries this object's feature term
         w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
         args = None
         if prior is not None and len(prior):
             args = prior_constants(prior[0, 0], prior[0, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"],
-                                   coupling=float(prior[0, 2]),
-                                   spin_scale=float(prior[0, 3]) if prior.shape[1] > 3 else 1.0)
+                                   coupling=float(prior[0, 2]))
         return _numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps, args)
 
     def _fused_kernel(self, kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor,
@@ -746,10 +715,7 @@ class DynamicsModel(nn.Module):
                             log = np.asarray(feature, np.float32) @ kernel["np_lever_w"] + kernel["np_lever_b"]
                             factor = np.exp(np.clip(log, -LEVER_LOG_LIMIT, LEVER_LOG_LIMIT))
                             spin, coupling = spin * factor, coupling * factor * factor
-                        columns = [decel, spin, coupling]
-                        if self.spin is not None:  # the spin head in numpy (as rollout_raw's)
-                            columns.append(self.spin.factor(feature, vel0, angvel0).astype(np.float32))
-                        prior = np.stack(columns, -1)
+                        prior = np.stack([decel, spin, coupling], -1)
                     raw_np, xs_np = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs,
                                                        int(steps), prior)
                     return raw_np[None], xs_np[None], {"in": scale_in, "out": kernel["np_out"]}
@@ -764,12 +730,10 @@ class DynamicsModel(nn.Module):
             return raw.float().cpu().numpy(), xs.float().cpu().numpy(), scales
 
     def rollout(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
-                obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
-                spin_scale: Optional[Tensor] = None) -> dict[str, Tensor]:
-        """Physical roll-out in C: vel/angvel (B, steps+1, 3), d_pos/d_rot (B, steps, 3), topple_logit (B, steps);
-        spin_scale as rollout_raw."""
+                obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None) -> dict[str, Tensor]:
+        """Physical roll-out in C: vel/angvel (B, steps+1, 3), d_pos/d_rot (B, steps, 3), topple_logit (B, steps)."""
         fast = self._fast()
-        raw, xs = self.rollout_raw(feature, vel0, angvel0, steps, obs_vel, obs_angvel, fast, spin_scale)
+        raw, xs = self.rollout_raw(feature, vel0, angvel0, steps, obs_vel, obs_angvel, fast)
         out = self.denormalize(raw, fast)
         x = xs * fast["in"]
         out["vel"], out["angvel"] = x[..., 0:3], x[..., 3:6]

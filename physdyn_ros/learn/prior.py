@@ -92,19 +92,17 @@ def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, coupling: Tensor, sc
 
 
 def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT,
-                    coupling: float = 0.0, spin_scale: float = 1.0) -> tuple:
-    """The numbers prior_into needs, gathered once per roll-out; spin_scale: the factor on each step's whole change
-    of spin about z (network and prior; DynamicsModel.rollout_raw), 1 for none."""
+                    coupling: float = 0.0) -> tuple:
+    """The numbers prior_into needs, gathered once per roll-out."""
     si, so, g = [float(v) for v in scale_in], [float(v) for v in scale_out], [float(v) for v in gain]
     return (float(decel), float(spin_decel), si[0], si[1], si[5], 1 / so[0], 1 / so[1], 1 / so[5], 1 / so[6],
-            1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt), float(coupling), float(spin_scale))
+            1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt), float(coupling))
 
 
 def prior_into(row, x, c: tuple) -> None:
     """prior_raw added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
-    next input, through the feedback gain); only the six non-zero components, as Python floats (~3 us a step).
-    Then a spin_scale other than 1 scales the step's whole d_angvel z (row[5]) and its share of the next input."""
-    decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt, coupling, spin_scale = c
+    next input, through the feedback gain); only the six non-zero components, as Python floats."""
+    decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt, coupling = c
     vx, vy, wz = float(x[0]) * s0, float(x[1]) * s1, float(x[5]) * s5
     speed = math.sqrt(vx * vx + vy * vy + SPEED_EPS * SPEED_EPS)
     if coupling:  # sliding_step's shared friction
@@ -129,7 +127,3 @@ def prior_into(row, x, c: tuple) -> None:
         row[5] += p5
         row[11] += sign * (w_abs * t - 0.5 * spin * t * t) * o11
         row[18] += g5 * p5
-    if spin_scale != 1.0:  # row[18] = x[5] + g5 row[5]: the next input follows the scaled change
-        d_wz = float(row[5])
-        row[5] = d_wz * spin_scale
-        row[18] += g5 * (spin_scale - 1.0) * d_wz

@@ -108,10 +108,10 @@ def _section(cls: type, data: Optional[dict[str, Any]], name: str) -> Any:
 
 def resolve_config(raw: dict[str, Any]) -> dict[str, Any]:
     """Validate a config dict (model / loss / train / data sections) and fill in defaults."""
+    model = ModelConfig.from_dict(dict(raw.get("model") or {}))  # first: it names a removed option it needs
     unknown = sorted(set(raw) - {"model", "loss", "train", "data"})
     if unknown:
         raise ValueError(f"unknown config sections {unknown} (expected model, loss, train, data)")
-    model = ModelConfig.from_dict(dict(raw.get("model") or {}))
     loss = LossConfig.from_dict(dict(raw.get("loss") or {}))
     train = _section(TrainConfig, raw.get("train"), "train")
     data = _section(DataConfig, raw.get("data"), "data")
@@ -362,7 +362,7 @@ def _device(device: str, d: Dist) -> torch.device:
 def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     """Two model configs whose weights are interchangeable: equal but for the physics prior (no weights of its
     own), which a fine-tune may swap between its two kinds, give another friction or a learned lever (a = the
-    checkpoint's, b = the run's), and the whole-push topple and spin heads (not trained here). Keys a checkpoint written
+    checkpoint's, b = the run's), and the whole-push topple head (not trained here). Keys a checkpoint written
     before they existed lacks count as their defaults."""
     from dataclasses import asdict
 
@@ -370,7 +370,7 @@ def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
 
     a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
     # the head is fitted afterwards on frozen features
-    drop = {"topple_head", "topple_hidden", "topple_members", "topple_inputs", "spin_head", "spin_hidden"}
+    drop = {"topple_head", "topple_hidden", "topple_members", "topple_inputs"}
     if {a["prior"], b["prior"]} <= {"sliding", "coupled"}:
         drop |= {"prior", "prior_friction"}
         if not a["prior_lever"]:  # a fine-tune may add the learned lever (it starts as the prior unchanged)
@@ -454,7 +454,7 @@ class _Run:
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda step: lr_factor(step, tcfg))
         self.prog: dict[str, Any] = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
         if base is not None:  # the dynamics weights; a topple head is refit on the new features (fit-topple)
-            state = {k: v for k, v in base["model"].items() if not k.startswith(("topple.", "spin."))}
+            state = {k: v for k, v in base["model"].items() if not k.startswith("topple.")}
             res = self.core.load_state_dict(state, strict=False)
             # a new topple head is fitted later; a new lever (model.prior_lever) starts at factor 1
             bad = [k for k in res.missing_keys if not k.startswith(("topple.", "lever."))] + list(res.unexpected_keys)
@@ -652,11 +652,10 @@ def run(args: argparse.Namespace) -> int:
         if not Path(args.init).is_file():
             raise FileNotFoundError(f"--init checkpoint {args.init} does not exist")
         base = copy.deepcopy(load_checkpoint(args.init)["config"])
-        # a fine-tune changes the shape features the topple and spin heads read: they are not carried over (refit
-        # them with physdyn fit-topple / fit-spin on the result), nor the records of their fits
+        # a fine-tune changes the shape features the topple head reads: it is not carried over (refit it with
+        # physdyn fit-topple on the result), nor the record of its fit
         base.pop("topple_fit", None)
-        base.pop("spin_fit", None)
-        base["model"] = {**base["model"], "topple_head": False, "spin_head": False}
+        base["model"] = {**base["model"], "topple_head": False}
         apply_overrides(base, args.set)
         cfg = resolve_config(base)
     else:
