@@ -135,9 +135,6 @@ CASES: dict[str, Case] = {
     "learned_refused_topple": (_shipped, dict(cloud=box_cloud(half=(0.02, 0.02, 0.12), seed=4),
                                               start=(0.0, 0.0, 0.0), goal=Goal(Pose2D(0.3, 0.0, 0.0), 0.02, math.pi),
                                               config=replace(BASE, min_contact_height=0.1))),
-    "learned_box_refined": (_shipped, dict(cloud=box_cloud(seed=6), start=(0.0, 0.0, 0.0),
-                                           goal=Goal(Pose2D(0.12, -0.08, -0.4), 0.02, math.radians(10)),
-                                           config=replace(BASE, refine_steps=3))),
 }
 
 

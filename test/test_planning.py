@@ -154,20 +154,15 @@ def tiny_predictor(tmp_path_factory):
     return Predictor.load(random_checkpoint(tmp_path_factory.mktemp("ckpt") / "tiny.pt"))
 
 
-def test_planner_runs_on_the_learned_model_and_refines_with_gradients(tiny_predictor):
+def test_planner_runs_on_the_learned_model(tiny_predictor):
     cloud = box_cloud()
     goal = Goal(Pose2D(0.15, 0.05, 0.0), position_tolerance=0.05, yaw_tolerance=math.pi)
     cfg = PlannerConfig(time_budget=5.0, samples=32, max_iterations=2, max_topple_probability=1.0, seed=0)
-    base = PushPlanner(tiny_predictor, cfg).plan(cloud, Pose2D(0, 0, 0), goal)
-    refined = PushPlanner(tiny_predictor, replace(cfg, refine_steps=5)).plan(cloud, Pose2D(0, 0, 0), goal)
-    for plan in (base, refined):
-        assert plan.model_id == tiny_predictor.model_id
-        replay = tiny_predictor.rollout(cloud, plan.lin_vel, plan.ang_vel, horizon=plan.horizon)
-        np.testing.assert_allclose(replay.positions[-1], plan.final_position, atol=1e-3)  # float32, batched vs single
-    # refinement starts from the same CEM result and re-scores its iterates with the planner's batch
-    assert refined.rollouts > base.rollouts
-    # review of session 8: a refined push replaced the checked one without the robustness check (spread 0)
-    assert refined.spread > 0 and base.spread > 0
+    plan = PushPlanner(tiny_predictor, cfg).plan(cloud, Pose2D(0, 0, 0), goal)
+    assert plan.model_id == tiny_predictor.model_id
+    replay = tiny_predictor.rollout(cloud, plan.lin_vel, plan.ang_vel, horizon=plan.horizon)
+    np.testing.assert_allclose(replay.positions[-1], plan.final_position, atol=1e-3)  # float32, batched vs single
+    assert plan.spread > 0  # the robustness check ran
 
 
 def test_online_adapter_feeds_observed_steps(tiny_predictor):

@@ -639,23 +639,6 @@ def test_numpy_inference_equals_the_torch_head(fitted):
     assert np.all(model.topple.assess(d["feature"], d["desc"], vel, angvel)[0] > prob)
 
 
-def test_gradient_refinement_reads_the_dynamics_part_of_a_headed_code(fitted):
-    """Review finding: the planner's refinement fed all 42 numbers of a topple-head code to the dynamics
-    network (20 inputs) and crashed."""
-    from dataclasses import replace
-
-    from physdyn_ros.planning.planner import Goal, PlannerConfig, Pose2D, PushPlanner
-    from physdyn_ros.predictor import Predictor
-
-    pred = Predictor.load(fitted[1])
-    cloud = _surface(trimesh.creation.box(extents=(0.08, 0.06, 0.1))) + [0.0, 0.0, 0.05]
-    goal = Goal(Pose2D(0.15, 0.05, 0.0), position_tolerance=0.05, yaw_tolerance=math.pi)
-    cfg = PlannerConfig(time_budget=5.0, samples=32, max_iterations=2, max_topple_probability=1.0, seed=0)
-    base = PushPlanner(pred, cfg).plan(cloud, Pose2D(0, 0, 0), goal)
-    refined = PushPlanner(pred, replace(cfg, refine_steps=3)).plan(cloud, Pose2D(0, 0, 0), goal)
-    assert refined.rollouts > base.rollouts
-
-
 def _tall_box_pushes(fitted, seed: int):
     """(predictor, code, v, w, 60-step batch) of 32 random pushes of a 5 x 5 x 20 cm box with the fitted head."""
     from physdyn_ros.predictor import Predictor

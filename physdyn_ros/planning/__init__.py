@@ -3,7 +3,6 @@
     planner.py     PushPlanner: CEM over Predictor.rollout_batch -> the push (velocity, impulse, contact point)
     body.py        mass, inertia and COM-height section of the object: velocity <-> impulse at a contact point
     models.py      the DynamicsModel protocol and AnalyticSlidingModel (closed-form physics stand-in)
-    refine.py      optional gradient refinement through the learned model (torch)
     adapt.py       OnlineAdapter: re-predict as observed states arrive ("steps in")
     closed_loop.py plan -> push in the pybullet Simulator -> observe -> re-plan (pybullet imported lazily)
     sim_model.py   PybulletModel: the planner driven by pybullet re-simulation (comparison baseline)

@@ -33,7 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-topple", type=float, default=PlannerConfig.max_topple_probability,
                         help="reject pushes more likely to topple than this")
     parser.add_argument("--time-budget", type=float, default=PlannerConfig.time_budget, help="s per plan")
-    parser.add_argument("--refine-steps", type=int, default=0, help="gradient steps through the model after CEM")
     parser.add_argument("--friction", type=float, default=0.5, help="friction of the simulated table (--execute)")
     parser.add_argument("--execute", action="store_true", help="push the object in pybullet and report the outcome")
     parser.add_argument("--max-pushes", type=int, default=1, help="with --execute: re-plan up to this many pushes")
@@ -66,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     yaw_tol = math.pi if args.yaw_tolerance >= 180 else math.radians(args.yaw_tolerance)
     goal = Goal(Pose2D(args.goal[0], args.goal[1], math.radians(args.goal[2])), args.tolerance, yaw_tol)
     config = PlannerConfig(max_speed=args.max_speed, max_topple_probability=args.max_topple,
-                           time_budget=args.time_budget, refine_steps=args.refine_steps)
+                           time_budget=args.time_budget)
     if args.execute and args.cloud:
         raise PlanningError("--execute needs an object to simulate (--category or --mesh), not --cloud")
     if args.max_pushes < 1:

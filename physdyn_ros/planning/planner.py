@@ -27,8 +27,7 @@ perturbed rest positions from the nominal one) and that probability are reported
 under that noise (a search that converged at the edge of the topple limit), the best pushes of the whole search
 whose own risk lies under half the limit are checked the same way before the plan is refused. (Requiring every perturbed
 push to stay under the limit refused 10 of 42 bench trials against 3, with as many topples: 52 % against 62 %
-within three pushes, bench_planning.py --iterations 3.) Optionally a few gradient steps through the learned
-model polish the push's velocity at the chosen contact (planning.refine).
+within three pushes, bench_planning.py --iterations 3.)
 
 Cost of a candidate (lower is better), from its predicted final state:
     (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)
@@ -213,13 +212,11 @@ class PlannerConfig:
     #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
     density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
-    refine_steps: int = 0  # gradient steps through the learned model after CEM (0 = off)
-    refine_lr: float = 0.05  # step size of the refinement (Adam, on normalised push parameters)
     seed: int = 0  # candidate sampling is deterministic for a given seed
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
-                     "density", "refine_lr", "max_spin"):
+                     "density", "max_spin"):
             v = _finite(getattr(self, name), name)
             if v <= 0:
                 raise PlanningError(f"{name} must be positive, got {v}")
@@ -238,7 +235,7 @@ class PlannerConfig:
                                 f"{lo:g}, {hi:g}")
         if not 0 <= _finite(self.robust_share, "robust_share") < 1:
             raise PlanningError(f"robust_share must be in [0, 1), got {self.robust_share}")
-        optional = ("horizon", "refine_steps", "robust_candidates", "robust_samples")
+        optional = ("horizon", "robust_candidates", "robust_samples")
         for name in ("samples", "max_iterations") + optional:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in optional else 1):
@@ -477,7 +474,7 @@ PERTURB_SPEED, PERTURB_ANGLE, PERTURB_FRACTION, PERTURB_HEIGHT = 0.08, math.radi
 
 
 class _Search:
-    """One CEM run (state shared by the iterations, the robustness check and the optional refinement)."""
+    """One CEM run (state shared by the iterations and the robustness check)."""
 
     def __init__(self, planner: PushPlanner, code: Any, body: PushBody, start: Pose2D, goal: Goal,
                  cfg: PlannerConfig, horizon: int, t0: float) -> None:
@@ -656,12 +653,7 @@ class _Search:
             if best.cost < 0.05 and cfg.robust_candidates == 0:  # far inside the tolerances: more buys nothing
                 break
         assert best is not None
-        best = self.robust(elites, best)
-        if cfg.refine_steps > 0 and time.perf_counter() < self.deadline:
-            from .refine import refine_candidate
-
-            best = refine_candidate(self, best)
-        return best
+        return self.robust(elites, best)
 
     def robust(self, elites: list[_Candidate], best: _Candidate) -> _Candidate:
         """Re-check the best distinct elites under perturbed execution; the most robust safe one wins. When none
