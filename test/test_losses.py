@@ -136,31 +136,3 @@ def test_absolute_term_adds_the_normalised_error_and_is_off_by_default():
     target[0, 0, 6:9] = torch.tensor([3.0, 4.0, 0.0])  # |d_pos error| = 5
     target[0, 1, 9:12] = torch.tensor([1.0, -1.0, 0.0])  # L1 rot error = 2
     assert_optional_term(raw, target, "abs", 0.5, (5.0 + 2.0) / 2)
-
-
-def test_accumulated_pose_term_grows_with_a_steady_bias_and_cancels_opposite_errors():
-    """w_cum: a per-step under-turn adds up over the window (what the final pose sees), errors that cancel do not."""
-    raw, target, topple = torch.zeros(1, 4, 13), torch.zeros(1, 4, 12), torch.zeros(1, 4)
-    target[0, :, 11] = 1.0  # the object turns 1 (normalised) per step; the prediction turns none
-    assert_optional_term(raw, target, "cum", 2.0, (1 + 2 + 3 + 4) / 4)  # accumulated error after each step
-    # a step too far, then one too short: the per-step terms see two errors, the accumulated pose one step's
-    raw2 = torch.zeros(1, 2, 13)
-    raw2[0, 0, 6] = 1.0
-    _, p2 = dynamics_loss(raw2, torch.zeros(1, 2, 12), torch.zeros(1, 2), LossConfig(w_cum=1.0))
-    raw2[0, 1, 6] = -1.0
-    _, p3 = dynamics_loss(raw2, torch.zeros(1, 2, 12), torch.zeros(1, 2), LossConfig(w_cum=1.0))
-    assert p2["cum"].item() == pytest.approx(1.0) and p3["cum"].item() == pytest.approx(0.5)
-    # masked steps add nothing
-    mask = torch.tensor([[1.0, 1.0, 0.0, 0.0]])
-    _, masked = dynamics_loss(raw, target, topple, LossConfig(w_cum=1.0), mask)
-    assert masked["cum"].item() == pytest.approx((1 + 2) / 2)
-
-
-def test_spin_term_weighs_the_z_parts_alone():
-    """w_spin: |error| of d_angvel_z and d_rot_z (normalised), whatever the tilt parts do."""
-    raw, target = torch.zeros(1, 2, 13), torch.zeros(1, 2, 12)
-    target[0, 0, 5] = -0.5  # the spin slows by 0.5; the prediction keeps it
-    target[0, 1, 11] = 0.25  # and turns 0.25 it does not
-    raw[0, :, 3:5] = 3.0  # large wobble errors leave the term alone
-    assert_optional_term(raw, target, "spin", 4.0, (0.5 + 0.25) / 2)
-    assert_optional_term(raw, target, "spin_sq", 4.0, (0.5 ** 2 + 0.25 ** 2) / 2)  # its minimum: the mean

@@ -179,29 +179,20 @@ def test_training_windows_are_invariant_to_rotating_and_moving_the_whole_simulat
     assert np.abs(turned).max() < 1e-5
 
 
-def test_windows_from_the_impulse_start_at_frame_zero_and_leave_the_uniform_draw_alone():
-    """train.start_fraction: that share of windows starts at frame 0; at 0 the starts are exactly the old draw."""
-    from physdyn_ros.learn.train import TrainConfig
-    from physdyn_ros.learn.windows import WindowDataset, load_sims, random_starts
+def test_training_windows_start_while_the_object_moves():
+    """random_starts: uniform in [0, min(length - 1, T - window)], so that a window never starts in the rest
+    padding after a simulation ended (nor runs past its last frame)."""
+    from physdyn_ros.learn.windows import load_sims, random_starts
 
     sims = load_sims(tiny_dataset(), ["train"])
-    idx = np.arange(len(sims))
-    uniform = random_starts(sims, idx, 10, np.random.default_rng(3))
-    assert (uniform > 0).mean() > 0.8
-    np.testing.assert_array_equal(random_starts(sims, idx, 10, np.random.default_rng(3), 0.0), uniform)
-    assert not random_starts(sims, idx, 10, np.random.default_rng(3), 1.0).any()
-    half = random_starts(sims, idx, 10, np.random.default_rng(3), 0.5)
-    moved = half != uniform
-    assert not half[moved].any() and 0.25 < (half == 0).mean() < 0.75  # the others kept their uniform start
-    batch = WindowDataset(sims, 10, 64, from_impulse=1.0).batch(idx[:4], np.random.default_rng(0))
-    # the windows' first state is the push's frame 0 (speeds: the window's frame C turns the vectors)
-    assert np.allclose(np.linalg.norm(batch["vel"][:, 0].numpy(), axis=1),
-                       np.linalg.norm(sims.lin_vel[idx[:4], 0], axis=1), atol=1e-5)
-    for bad in (-0.1, 1.5):
-        with pytest.raises(ValueError, match="from_impulse"):
-            random_starts(sims, idx, 10, np.random.default_rng(0), bad)
-        with pytest.raises(ValueError, match="start_fraction"):
-            TrainConfig(start_fraction=bad)
+    idx = np.repeat(np.arange(len(sims)), 20)
+    starts = random_starts(sims, idx, 10, np.random.default_rng(3))
+    hi = np.minimum(np.maximum(sims.length[idx] - 1, 0), sims.num_frames - 10)
+    assert np.all(starts >= 0) and np.all(starts <= hi) and (starts > 0).mean() > 0.8
+    assert np.any(starts == hi)  # the whole range is drawn
+    np.testing.assert_array_equal(random_starts(sims, idx, 10, np.random.default_rng(3)), starts)
+    with pytest.raises(ValueError, match="windows need"):
+        random_starts(sims, idx, sims.num_frames + 1, np.random.default_rng(0))
 
 
 def test_rotation_increments_are_world_fixed():

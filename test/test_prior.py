@@ -66,28 +66,6 @@ def test_the_coupled_prior_shares_friction_between_sliding_and_spinning():
     assert row[6] == pytest.approx(dp[2, 0].item(), rel=1e-9) and row[11] == pytest.approx(dr[2, 2].item(), rel=1e-9)
 
 
-def test_the_coupled_prior_shares_friction_over_the_learned_lever():
-    """coupling k (model.prior_lever's f^2 with spin deceleration f mu g / r): the friction is shared over the
-    lever f r, so a smaller contact lever spins down slower AND leaves more friction to the sliding; with the
-    lever taken as mu g / spin_decel = r / f instead, a slower spin would have taken friction from the sliding."""
-    from physdyn_ros.learn.prior import prior_constants, prior_into
-
-    mu_g, r, f = 0.5 * GRAVITY, 0.05, 0.5
-    decel = torch.full((1,), mu_g, dtype=torch.float64)
-    v, w = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64), torch.tensor([[0.0, 0.0, 3.2]], dtype=torch.float64)
-    dv, dw, dp, dr = sliding_step(v, w, decel, decel / r * f, torch.full((1,), f * f, dtype=torch.float64))
-    norm = math.hypot(1.0, f * r * 3.2)
-    assert dv[0, 0].item() == pytest.approx(-mu_g / norm * DT, rel=1e-6)
-    assert dw[0, 2].item() == pytest.approx(-(f * mu_g / r) * (f * r * 3.2 / norm) * DT, rel=1e-6)
-    plain_dv = sliding_step(v, w, decel, decel / r, torch.ones(1, dtype=torch.float64))[0]
-    assert dv[0, 0].item() < plain_dv[0, 0].item()  # more of the friction slows the sliding
-    ones = np.ones(19)
-    row, x = np.zeros(19), np.array([1.0, 0.0, 0.0, 0.0, 0.0, 3.2])
-    prior_into(row, x, prior_constants(mu_g, f * mu_g / r, ones, ones, ones, DT, coupling=f * f))
-    assert row[0] == pytest.approx(dv[0, 0].item(), rel=1e-9) and row[5] == pytest.approx(dw[0, 2].item(), rel=1e-9)
-    assert row[6] == pytest.approx(dp[0, 0].item(), rel=1e-9) and row[11] == pytest.approx(dr[0, 2].item(), rel=1e-9)
-
-
 def test_decelerations_from_the_cloud():
     cloud = torch.tensor([[[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [0.0, -0.1, 0.05]]])
     decel, spin = decelerations(cloud, 0.5)

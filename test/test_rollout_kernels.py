@@ -300,37 +300,3 @@ def test_batch1_numpy_kernel_equals_its_previous_version_bit_for_bit(shipped, pu
             ref_raw, ref_xs = m.rollout_raw(feature[i:i + 1], v[i:i + 1], w[i:i + 1], 60,
                                             *((obs_v[i:i + 1], obs_w[i:i + 1]) if observed else (None, None)))
         assert np.array_equal(arr_raw, ref_raw.numpy()) and np.array_equal(arr_xs, ref_xs.numpy()), i
-
-
-@pytest.mark.parametrize("batch", [1, 5])  # 1: the numpy kernel (its own lever in numpy); 5: the torch kernel
-def test_learned_lever_scales_the_prior_spin_deceleration_in_every_kernel(batch):
-    """model.prior_lever: zero at start (the prior as it was), then a per-object factor exp(a . f + b) on mu g / r
-    that every kernel applies alike, and that follows parameter updates."""
-    torch.manual_seed(1)
-    common = dict(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), hidden_size=32, geometry=True,
-                  prior="coupled", input_skip=True)
-    plain = DynamicsModel(ModelConfig(**common), STATS).eval()
-    lever = DynamicsModel(ModelConfig(**common, prior_lever=True), STATS).eval()
-    lever.load_state_dict(plain.state_dict(), strict=False)
-    width = plain.feature_dim
-    feature = torch.cat([torch.randn(batch, 8), torch.rand(batch, width - 8) + 0.5], 1)
-    v, w = torch.randn(batch, 3) * 0.5, torch.randn(batch, 3) * 6
-    with torch.inference_mode():
-        assert torch.equal(lever._prior_decel(feature)[1], plain._prior_decel(feature)[1])
-        assert torch.equal(lever.rollout_raw(feature, v, w, 30)[0], plain.rollout_raw(feature, v, w, 30)[0])
-        before = lever.rollout_raw(feature, v, w, 30)[0]
-    with torch.no_grad():
-        lever.lever.bias.fill_(-0.7)
-        torch.nn.init.normal_(lever.lever.weight, std=0.1)
-    factor = torch.exp(lever.lever(feature)[:, 0]).detach()
-    _, spin, coupling = lever._prior_decel(feature)
-    assert torch.allclose(spin.detach(), plain._prior_decel(feature)[1] * factor)
-    assert torch.allclose(coupling.detach(), factor * factor)  # the shared friction's lever f r, not r / f
-    ref_raw, ref_xs = old_rollout_raw(lever, feature, v, w, 30)  # the differentiable kernel, prior from _prior_decel
-    with torch.inference_mode():
-        raw, xs = lever.rollout_raw(feature, v, w, 30)
-        arr_raw, _, _ = lever.rollout_arrays(feature.numpy(), v.numpy(), w.numpy(), 30)
-    assert not torch.allclose(raw, before)  # the cached kernel saw the lever change
-    assert close(raw, ref_raw) and close(xs, ref_xs) and close(torch.from_numpy(arr_raw), ref_raw)
-    with pytest.raises(ValueError, match="prior_lever"):
-        ModelConfig(num_points=64, pointnet=(32, 64), shape_mlp=(32, 8), prior_lever=True)

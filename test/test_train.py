@@ -262,29 +262,6 @@ def test_a_fine_tune_may_swap_the_physics_prior_and_nothing_else():
     assert _same_weights(base, {**base, "topple_head": False, "topple_members": 5})
     assert not _same_weights(base, {**base, "hidden_size": 16})
     assert not _same_weights({**base, "prior": "none"}, {**base, "prior": "coupled"})
-    # the learned lever (model.prior_lever) may be added (it starts as the prior unchanged), not dropped
-    assert _same_weights(base, {**base, "prior": "coupled", "prior_lever": True})
-    assert not _same_weights({**base, "prior_lever": True}, base)
-
-
-def test_the_lever_and_the_accumulated_pose_train_from_windows_after_the_impulse(tmp_path):
-    """model.prior_lever + loss.w_cum + train.start_fraction (session 14): the zero-initialised lever learns, the
-    accumulated-pose term is logged and falls."""
-    cfg = tiny_config(model={"geometry": True, "prior": "coupled", "prior_lever": True, "input_skip": True},
-                      loss={"w_cum": 1.0, "relative_to": "target", "eps": 0.1}, data={"max_train_sims": 6},
-                      train={"epochs": 120, "batch_size": 6, "val_every": 1, "lr": 0.01, "rollout_fraction": 0.5,
-                             "start_fraction": 0.5, "lever_lr_scale": 3.0, "val_rollout_horizon": 0})
-    train(cfg, tiny_dataset(), tmp_path / "r", progress=False)
-    records = log(tmp_path / "r")  # one batch an epoch, teacher-forced or closed-loop: means over 20 epochs
-    early, late = (np.mean([r["train_cum"] for r in part]) for part in (records[:20], records[-20:]))
-    assert late < 0.7 * early, (early, late)
-    assert all(np.isfinite(r["val_closed_cum"]) for r in records)
-    weights = load_checkpoint(tmp_path / "r" / "model_best.pt")["model"]
-    assert weights["lever.weight"].abs().max() > 1e-3
-    state = load_checkpoint(tmp_path / "r" / "checkpoint_last.pt")["optimizer"]
-    assert [g["lr"] / state["param_groups"][0]["lr"] for g in state["param_groups"]] == pytest.approx([1.0, 3.0])
-    with pytest.raises(ValueError, match="lever_lr_scale"):
-        tiny_config(train={"lever_lr_scale": 0})
 
 
 def test_shipped_options_train_the_skip_path_and_the_loss_falls(tmp_path):

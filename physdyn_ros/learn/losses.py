@@ -9,9 +9,6 @@ then
     L_cls = BCE(topple logit, label)
     L     = w_v L_v + w_w L_w + w_p L_p + w_rot L_rot + w_cls L_cls   (paper: all 1, w_cls = 2)
     (+ w_abs L_abs, the absolute error in normalised units; off by default)
-    (+ w_cum L_cum, the error of the pose accumulated from the window's start; off by default)
-    (+ w_spin L_spin, the absolute error of the spin's change and the turn about z, and w_spin_sq the squared
-     one; off by default)
 
 Relative errors weigh a slow object's small increments as much as a fast one's large ones (the paper's
 reason). The original had no eps, so a resting object (both vectors exactly 0) gave 0/0 = NaN; with eps the
@@ -33,7 +30,7 @@ from torch import Tensor
 from .sections import known_keys
 
 #: Terms beyond the paper's, each on when its weight w_<name> is > 0.
-OPTIONAL_TERMS = ("abs", "cum", "spin", "spin_sq")
+OPTIONAL_TERMS = ("abs",)
 #: (name, slice of the 12 normalised increments)
 COMPONENTS = (("vel", slice(0, 3)), ("angvel", slice(3, 6)), ("pos", slice(6, 9)), ("rot", slice(9, 12)))
 
@@ -53,19 +50,6 @@ class LossConfig:
     # increments. A relative loss gives a fast object's large increment a gradient ~1/||x|| as small as a
     # resting one's is large, so the few steps that carry most of a hard push's travel are under-weighted.
     w_abs: float = 0.0
-    # Beyond the paper: w_cum * the error of the pose accumulated over the window (position and rotation
-    # increments summed from its start, normalised units, L2 / L1), averaged over its steps: the per-step losses
-    # leave biases that show only when the steps add up (roll-outs that stop spinning too soon; model card,
-    # session 14, where this and w_spin were tried).
-    w_cum: float = 0.0
-    # Beyond the paper: w_spin * the absolute error of the spin's change and of the turn about z (the z parts of
-    # d_angvel and d_rot, normalised units, L1): inside the vector losses the spin's deceleration is a small part
-    # of |d_angvel|, whose tilt parts (wobble) dominate.
-    w_spin: float = 0.0
-    # w_spin_sq: the same z parts' squared error, whose minimum is the mean: the turn adds up the spin's mean
-    # deceleration, and the other terms' minimum in that direction is not it (bench/topple_inputs.py
-    # --loss-sensitivity).
-    w_spin_sq: float = 0.0
     # Models with a centre-of-mass head (model.com_head): w_com * the L2 error of the estimate in cloud-scale units.
     w_com: float = 1.0
 
@@ -120,18 +104,6 @@ def dynamics_loss(raw: Tensor, target: Tensor, topple: Tensor, cfg: LossConfig,
     if cfg.w_abs > 0:
         per_step["abs"] = sum(safe_l2(raw[..., sl] - target[..., sl]) if name != "rot"
                               else (raw[..., sl] - target[..., sl]).abs().sum(-1) for name, sl in COMPONENTS)
-    if cfg.w_cum > 0:
-        diff = raw[..., :12] - target
-        if mask is not None:  # masked steps add nothing to the accumulated pose
-            diff = diff * mask.to(raw.dtype)[..., None]
-        per_step["cum"] = (safe_l2(torch.cumsum(diff[..., 6:9], dim=-2))
-                           + torch.cumsum(diff[..., 9:12], dim=-2).abs().sum(-1))
-    if cfg.w_spin > 0 or cfg.w_spin_sq > 0:
-        spin = raw[..., [5, 11]] - target[..., [5, 11]]  # the z parts of d_angvel and d_rot
-        if cfg.w_spin > 0:
-            per_step["spin"] = spin.abs().sum(-1)
-        if cfg.w_spin_sq > 0:
-            per_step["spin_sq"] = (spin * spin).sum(-1)
     per_step["topple"] = F.binary_cross_entropy_with_logits(raw[..., 12], topple.to(raw.dtype), reduction="none")
     if mask is None:
         means = {k: v.mean() for k, v in per_step.items()}

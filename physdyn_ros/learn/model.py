@@ -44,8 +44,6 @@ PRIORS = ("none", "sliding", "coupled")
 #: C centred at its centroid: RMS horizontal radius (spin friction's lever arm), height, height of the centroid
 #: over the lowest point, largest horizontal radius.
 GEOMETRY = ("radius", "height", "centroid_height", "reach")
-#: model.prior_lever: the learned log factor on the prior's spin deceleration is clipped to +-3 (x0.05 to x20).
-LEVER_LOG_LIMIT = 3.0
 
 
 @dataclass
@@ -80,12 +78,6 @@ class ModelConfig:
     # same with sliding and spinning sharing the friction (ellipsoidal limit surface, learn/prior.py).
     prior: str = "none"
     prior_friction: float = 0.5
-    # A learned per-object contact lever f r for the prior, f = exp(a . feature + b) (clipped to e^+-3), f = 1 at
-    # start (the prior unchanged): spin deceleration f mu g / r and, coupled, the friction shared over the lever
-    # f r. The residual network leaves the spin deceleration between the prior's mu g / r and the data's (session
-    # 14, on its own training pushes: mugs 1.7x, cylinders 1.4x, wedges and boxes 0.85x the data's;
-    # bench/topple_inputs.py --split train).
-    prior_lever: bool = False
     # A head that estimates the centre of mass from the cloud (relative to its centroid, in C): the start of a
     # roll-out when only one side of the object is seen.
     com_head: bool = False
@@ -112,8 +104,6 @@ class ModelConfig:
             raise ValueError("model.pointnet and model.shape_mlp need at least one positive width each")
         if self.prior not in PRIORS:
             raise ValueError(f"model.prior must be one of {PRIORS}, got {self.prior!r}")
-        if self.prior_lever and self.prior == "none":
-            raise ValueError("model.prior_lever scales the prior's spin deceleration: it needs model.prior")
         if self.prior != "none" and not self.geometry:
             raise ValueError(f"model.prior {self.prior} needs model.geometry: true (the lever arm of spin friction)")
         if not 0.0 < float(self.prior_friction) <= 2.0:
@@ -392,7 +382,6 @@ class DynamicsModel(nn.Module):
             self.mlp = nn.Sequential(*layers, nn.Linear(dims[-1], OUT_DIM))
         self.skip = nn.Linear(6, OUT_DIM, bias=False) if cfg.input_skip else None
         self.com = nn.Linear(self.feature_dim, 3) if cfg.com_head else None
-        self.lever = nn.Linear(self.feature_dim, 1) if cfg.prior_lever else None
         self.topple = (ToppleHead(self.feature_dim, cfg.topple_hidden, cfg.topple_members, cfg.topple_inputs)
                        if cfg.topple_head else None)
         self.register_buffer("scales", torch.ones(len(STAT_KEYS)))
@@ -422,8 +411,6 @@ class DynamicsModel(nn.Module):
             last = self.head if self.cfg.cell == "lstm" else self.mlp[-1]
             assert isinstance(last, nn.Linear)
             nn.init.zeros_(last.weight)
-        if self.lever is not None:  # factor 1: the prior as it was
-            nn.init.zeros_(self.lever.weight)
 
     def set_normalization(self, stats: dict[str, float]) -> None:
         missing = [k for k in STAT_KEYS if k not in stats]
@@ -457,7 +444,7 @@ class DynamicsModel(nn.Module):
                 # what _build_fast reads (not the encoder's parameters: fewer to check on every roll-out)
                 used: list[Optional[nn.Module]] = ([self.lstm, self.head] if self.cfg.cell == "lstm"
                                                    else [self.mlp])
-                self._cache_params = [p for m in used + [self.skip, self.lever] if m is not None
+                self._cache_params = [p for m in used + [self.skip] if m is not None
                                       for p in m.parameters()]
                 self._cache_params.append(self.scales)
             key = tuple((p.data_ptr(), p._version) for p in self._cache_params)
@@ -543,9 +530,6 @@ class DynamicsModel(nn.Module):
                       np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32),
                       np_gain=fast["gain"].numpy().astype(np.float32),
                       np_cloud=np.float32(self._scale("cloud").item()))
-        if self.lever is not None:
-            kernel.update(np_lever_w=self.lever.weight[0].detach().numpy().astype(np.float32),
-                          np_lever_b=np.float32(self.lever.bias.item()))
         return kernel
 
     # --------------------------------------------------------------------------------------------- pieces
@@ -573,16 +557,11 @@ class DynamicsModel(nn.Module):
 
     def _prior_decel(self, feature: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
         """(mu g, mu g / r, coupling) per object of the prior (prior.sliding_step), r from the feature's geometry
-        (model.prior); with model.prior_lever, the learned lever's spin deceleration and coupling."""
+        (model.prior)."""
         radius = (feature[:, self.learned_dim] * self._scale("cloud")).clamp_min(MIN_RADIUS)
         decel = torch.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
         coupling = torch.full_like(radius, float(self.cfg.prior == "coupled"))
-        if self.lever is None:
-            return decel, decel / radius, coupling
-        # model.prior_lever: the contact's lever f r (r: the cloud's radius of gyration about z): spin deceleration
-        # f mu g / r and, coupled, the friction shared over the lever f r (sliding_step's k = f^2)
-        factor = torch.exp(self.lever(feature)[:, 0].clamp(-LEVER_LOG_LIMIT, LEVER_LOG_LIMIT))
-        return decel, decel / radius * factor, coupling * factor * factor
+        return decel, decel / radius, coupling
 
     def _inputs(self, vel: Tensor, angvel: Tensor, fast: Optional[dict[str, Any]] = None) -> Tensor:
         scale = (fast or self._scale_vectors())["in"]
@@ -710,12 +689,7 @@ class DynamicsModel(nn.Module):
                                             np.float32(MIN_RADIUS))
                         decel = np.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
                         coupling = np.full_like(radius, float(self.cfg.prior == "coupled"))
-                        spin = decel / radius
-                        if self.lever is not None:  # as _prior_decel
-                            log = np.asarray(feature, np.float32) @ kernel["np_lever_w"] + kernel["np_lever_b"]
-                            factor = np.exp(np.clip(log, -LEVER_LOG_LIMIT, LEVER_LOG_LIMIT))
-                            spin, coupling = spin * factor, coupling * factor * factor
-                        prior = np.stack([decel, spin, coupling], -1)
+                        prior = np.stack([decel, decel / radius, coupling], -1)
                     raw_np, xs_np = self._numpy_kernel(kernel, np.asarray(feature, np.float32), x0[0], x_obs,
                                                        int(steps), prior)
                     return raw_np[None], xs_np[None], {"in": scale_in, "out": kernel["np_out"]}

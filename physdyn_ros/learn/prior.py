@@ -12,13 +12,12 @@ The prior is exact constant-deceleration kinematics over one step of dt, in fram
 So a network whose residual is zero (the zero-initialised head) starts as the analytic sliding baseline
 (learn/baselines.analytic_sliding; test_prior.py checks that stepping this prior reproduces it).
 
-model.prior coupled (session 8): one friction budget for sliding and spinning, the ellipsoidal limit surface
-of a contact patch (Goyal et al. 1991; Lynch et al. 1992): with s = |v_xy| and the lever r = k (mu g) / (spin
-deceleration) (k = 1; model.prior_lever's f^2, see sliding_step), the speed decreases by mu g s / |(s, r w_z)|
-per second and the spin by (spin deceleration) r |w_z| / |(s, r w_z)|. Pure sliding and pure spinning are
-unchanged; an object that slides while it turns keeps turning (the decoupled prior stopped a 3.2 rad/s spin of
-an object sliding at 1 m/s within one step, pybullet kept 2.9 rad/s: bench_planning's first pushes turned 1-5x
-what the model predicted), and one that spins drifts on.
+model.prior coupled: one friction budget for sliding and spinning, the ellipsoidal limit surface of a contact
+patch (Goyal et al. 1991; Lynch et al. 1992): with s = |v_xy| and the lever r = (mu g) / (spin deceleration),
+the speed decreases by mu g s / |(s, r w_z)| per second and the spin by (spin deceleration) r |w_z| /
+|(s, r w_z)|. Pure sliding and pure spinning are unchanged; an object that slides while it turns keeps turning
+(the decoupled prior stops the spin of a fast-sliding object within a step, where pybullet's keeps most of
+it), and one that spins drifts on.
 """
 from __future__ import annotations
 
@@ -40,8 +39,7 @@ def sliding_step(vel: Tensor, angvel: Tensor, decel: Tensor, spin_decel: Tensor,
                  dt: float = DT) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
     """One step of the prior. vel, angvel (..., 3) physical in C; decel (...,) = mu g (m/s^2); spin_decel
     (...,) = mu g / r (rad/s^2); coupling (...,) 0 (model.prior sliding: the two decelerations independent) or
-    k > 0 (coupled, see the module docstring, with the friction's lever k mu g / spin_decel: k = 1 for the plain
-    prior, the lever r; model.prior_lever's f^2 when the spin deceleration is f mu g / r, the lever f r).
+    1 (coupled: the friction shared over the lever mu g / spin_decel, see the module docstring).
     Returns physical increments d_vel, d_angvel, d_pos, d_rot (..., 3)."""
     vxy = vel[..., :2]
     # + SPEED_EPS^2 under the root: a finite gradient at rest (windows end in rest frames with v = 0 exactly)

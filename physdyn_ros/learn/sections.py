@@ -16,6 +16,12 @@ ANY = object()
 RETIRED: dict[tuple[str, str], tuple[Any, str]] = {
     ("model", "spin_head"): (False, "the spin head fitted by `physdyn fit-spin`"),
     ("model", "spin_hidden"): (ANY, "the width of the spin head"),
+    ("model", "prior_lever"): (False, "the prior's learned contact lever"),
+    ("train", "lever_lr_scale"): (ANY, "the learning rate of the prior's learned contact lever"),
+    ("train", "start_fraction"): (0.0, "training windows drawn from the impulse"),
+    ("loss", "w_cum"): (0.0, "the loss on the pose accumulated over a window"),
+    ("loss", "w_spin"): (0.0, "the L1 loss on the spin's change and turn about z"),
+    ("loss", "w_spin_sq"): (0.0, "the squared loss on the spin's change and turn about z"),
 }
 
 

@@ -58,11 +58,6 @@ class TrainConfig:
     weight_decay: float = 0.0
     grad_clip: Optional[float] = None  # max gradient norm; None = no clipping (paper)
     rollout_fraction: float = 0.0  # fraction of batches trained closed-loop (own velocities fed back); paper 0
-    # fraction of training windows that start at frame 0, right after the impulse, where every roll-out starts;
-    # the rest start uniformly while the object moves (the paper's windows), so the fast first steps after the
-    # impulse, which decide most of the turn, are otherwise a small share of the training steps.
-    start_fraction: float = 0.0
-    lever_lr_scale: float = 1.0  # the learned lever's (model.prior_lever) learning rate over lr
     val_every: int = 1  # epochs between validations (paper: 100 epochs of its much larger data)
     val_windows_per_sim: int = 2  # fixed validation windows per validation simulation
     val_seed: int = 0  # seed of the fixed validation windows (independent of `seed`)
@@ -78,10 +73,6 @@ class TrainConfig:
             raise ValueError("train: batch_size >= 1, window >= 2, epochs >= 0 and val_every >= 1 are required")
         if not 0.0 <= self.rollout_fraction <= 1.0:
             raise ValueError("train.rollout_fraction must be in [0, 1]")
-        if not 0.0 <= self.start_fraction <= 1.0:
-            raise ValueError("train.start_fraction must be in [0, 1]")
-        if not self.lever_lr_scale > 0:
-            raise ValueError("train.lever_lr_scale must be > 0")
 
 
 @dataclass
@@ -361,8 +352,8 @@ def _device(device: str, d: Dist) -> torch.device:
 
 def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     """Two model configs whose weights are interchangeable: equal but for the physics prior (no weights of its
-    own), which a fine-tune may swap between its two kinds, give another friction or a learned lever (a = the
-    checkpoint's, b = the run's), and the whole-push topple head (not trained here). Keys a checkpoint written
+    own), which a fine-tune may swap between its two kinds or give another friction (a = the checkpoint's, b = the
+    run's), and the whole-push topple head (not trained here). Keys a checkpoint written
     before they existed lacks count as their defaults."""
     from dataclasses import asdict
 
@@ -373,8 +364,6 @@ def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
     drop = {"topple_head", "topple_hidden", "topple_members", "topple_inputs"}
     if {a["prior"], b["prior"]} <= {"sliding", "coupled"}:
         drop |= {"prior", "prior_friction"}
-        if not a["prior_lever"]:  # a fine-tune may add the learned lever (it starts as the prior unchanged)
-            drop.add("prior_lever")
     return {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
 
 
@@ -398,8 +387,7 @@ def _start_checkpoints(cfg: dict[str, Any], resume: Optional[str],
         base = load_checkpoint(init, map_location="cpu")
         if not _same_weights(base["config"].get("model") or {}, cfg["model"]):
             raise CheckpointError(f"--init {init}: its model config differs from the requested one (only the "
-                                  "prior's kind, sliding or coupled, and its friction may change in a fine-tune, "
-                                  "and a learned lever, model.prior_lever, may be added)")
+                                  "prior's kind, sliding or coupled, and its friction may change in a fine-tune)")
     return ckpt, base
 
 
@@ -445,19 +433,13 @@ class _Run:
         model_cfg = ModelConfig.from_dict(cfg["model"])
         self.core = DynamicsModel(model_cfg, stats).to(dev)
         self.loss_cfg = LossConfig.from_dict(cfg["loss"])
-        # the learned lever (model.prior_lever) at its own pace: one linear map to a log factor, which at the
-        # network's rate moves a few % in an epoch
-        lever = [p for n, p in self.core.named_parameters() if n.startswith("lever.")]
-        rest = [p for n, p in self.core.named_parameters() if not n.startswith("lever.")]
-        groups = [{"params": rest}] + ([{"params": lever, "lr": tcfg["lr"] * tcfg["lever_lr_scale"]}] if lever else [])
-        self.optimizer = torch.optim.Adam(groups, lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
+        self.optimizer = torch.optim.Adam(self.core.parameters(), lr=tcfg["lr"], weight_decay=tcfg["weight_decay"])
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda step: lr_factor(step, tcfg))
         self.prog: dict[str, Any] = {"epoch": 0, "batch": 0, "step": 0, "best_metric": None, "best_epoch": None}
         if base is not None:  # the dynamics weights; a topple head is refit on the new features (fit-topple)
             state = {k: v for k, v in base["model"].items() if not k.startswith("topple.")}
             res = self.core.load_state_dict(state, strict=False)
-            # a new topple head is fitted later; a new lever (model.prior_lever) starts at factor 1
-            bad = [k for k in res.missing_keys if not k.startswith(("topple.", "lever."))] + list(res.unexpected_keys)
+            bad = [k for k in res.missing_keys if not k.startswith("topple.")] + list(res.unexpected_keys)
             if bad:
                 raise CheckpointError(f"the --init checkpoint's weights do not fit the model: {bad[:3]}")
         if ckpt is not None:
@@ -473,8 +455,7 @@ class _Run:
                 self.core, device_ids=[dev.index] if dev.type == "cuda" else None)
 
         self.ds = WindowDataset(train_sims, tcfg["window"], model_cfg.num_points,
-                                partial=dcfg.get("partial_views", 0.0), noise=dcfg.get("view_noise", 0.0),
-                                from_impulse=tcfg["start_fraction"])
+                                partial=dcfg.get("partial_views", 0.0), noise=dcfg.get("view_noise", 0.0))
         self.sampler: DistributedSampler = DistributedSampler(self.ds, num_replicas=d.world, rank=d.rank,
                                                               shuffle=True, seed=tcfg["seed"])
         if tcfg["batch_size"] % d.world:

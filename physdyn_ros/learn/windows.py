@@ -231,23 +231,16 @@ def make_windows(sims: SimArrays, index: np.ndarray, starts: np.ndarray, length:
     return tensors
 
 
-def random_starts(sims: SimArrays, index: np.ndarray, window: int, rng: np.random.Generator,
-                  from_impulse: float = 0.0) -> np.ndarray:
+def random_starts(sims: SimArrays, index: np.ndarray, window: int, rng: np.random.Generator) -> np.ndarray:
     """Uniform window starts while the object still moves: s in [0, min(length - 1, T - window)].
 
     The original's simulations ended at rest; ours are padded with the rest pose, so starting windows in the
-    padding would train mostly on "nothing happens". from_impulse: the fraction of windows that start at frame
-    0 instead, right after the impulse, where every roll-out starts (train.start_fraction).
+    padding would train mostly on "nothing happens".
     """
     if sims.num_frames < window:
         raise ValueError(f"the dataset has {sims.num_frames} frames per simulation; windows need {window}")
-    if not 0.0 <= from_impulse <= 1.0:
-        raise ValueError(f"from_impulse must be in [0, 1], got {from_impulse}")
     hi = np.minimum(np.maximum(sims.length[index] - 1, 0), sims.num_frames - window)
-    starts = (rng.random(len(index)) * (hi + 1)).astype(np.int64)
-    if from_impulse > 0:  # drawn after the uniform starts: from_impulse 0 leaves the generator's stream as it was
-        starts[rng.random(len(index)) < from_impulse] = 0
-    return starts
+    return (rng.random(len(index)) * (hi + 1)).astype(np.int64)
 
 
 def fixed_windows(sims: SimArrays, window: int, per_sim: int = 2, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -266,10 +259,10 @@ class WindowDataset(torch.utils.data.Dataset):
     """
 
     def __init__(self, sims: SimArrays, window: int = 15, num_points: int = 1024, seed: int = 0,
-                 partial: float = 0.0, noise: float = 0.0, from_impulse: float = 0.0) -> None:
+                 partial: float = 0.0, noise: float = 0.0) -> None:
         if not 0.0 <= partial <= 1.0 or noise < 0:
             raise ValueError(f"partial must be in [0, 1] and noise >= 0, got {partial}, {noise}")
-        self.partial, self.noise, self.from_impulse = float(partial), float(noise), float(from_impulse)
+        self.partial, self.noise = float(partial), float(noise)
         if window < 2:
             raise ValueError("window must be >= 2 frames")
         if sims.num_frames < window:
@@ -282,7 +275,7 @@ class WindowDataset(torch.utils.data.Dataset):
 
     def batch(self, index: Sequence[int] | np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         index = np.asarray(index, dtype=np.int64)
-        starts = random_starts(self.sims, index, self.window, rng, self.from_impulse)
+        starts = random_starts(self.sims, index, self.window, rng)
         return make_windows(self.sims, index, starts, self.window, self.num_points, rng, self.partial, self.noise)
 
     def __getitems__(self, indices: list[int]) -> dict[str, torch.Tensor]:
