@@ -135,7 +135,7 @@ def test_wrap_and_yaw_helpers():
 
 
 def test_final_speed_comes_from_the_last_displacement():
-    from physdyn_ros.planning.planner import final_speed
+    from physdyn_ros.planning.search import final_speed
 
     pos = np.zeros((2, 5, 3))
     pos[0, :, 0] = [0.0, 0.02, 0.03, 0.03, 0.03]  # at rest over the last step
@@ -340,7 +340,7 @@ def test_tip_estimate_agrees_with_pybullet():
     is below it."""
     from physdyn_ros import geometry as geo
     from physdyn_ros.planning import body_from_cloud
-    from physdyn_ros.planning.planner import tip_probability
+    from physdyn_ros.planning.search import tip_probability
     from physdyn_ros.shapes.core import convex_hull, make_shape
     from physdyn_ros.shapes.solids import box_points
     from physdyn_ros.sim.push import record

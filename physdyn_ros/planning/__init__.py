@@ -1,6 +1,8 @@
 """Push planning and online adaptation on top of the dynamics model (numpy + the Predictor; no rclpy, no pybullet).
 
-    planner.py     PushPlanner: CEM over Predictor.rollout_batch -> the push (velocity, impulse, contact point)
+    planner.py     PushPlanner: checks a request, runs the search, turns its winner into a PushPlan (or refuses)
+    search.py      the search: CEM over Predictor.rollout_batch, the robustness check, the cost of a push
+    types.py       the value types: Pose2D, Goal, TableBounds, PlannerConfig, PushPlan, PlanningError
     body.py        mass, inertia and COM-height section of the object: velocity <-> impulse at a contact point
     models.py      the DynamicsModel protocol and AnalyticSlidingModel (closed-form physics stand-in)
     adapt.py       OnlineAdapter: re-predict as observed states arrive ("steps in")
@@ -11,7 +13,8 @@
 from .adapt import OnlineAdapter, repredict
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
 from .models import AnalyticSlidingModel, DynamicsModel
-from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, TableBounds, wrap_angle, yaw_of
+from .planner import PushPlanner
+from .types import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, TableBounds, wrap_angle, yaw_of
 
 __all__ = ["AnalyticSlidingModel", "BodyError", "DynamicsModel", "Goal", "OnlineAdapter", "PlannerConfig",
            "PlanningError", "Pose2D", "PushBody", "PushPlan", "PushPlanner", "TableBounds", "body_from_box",

@@ -14,7 +14,8 @@ import math
 from typing import Any
 
 
-from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner
+from .planner import PushPlanner
+from .types import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,8 +18,9 @@ import numpy as np
 
 from .. import geometry as geo
 from ..conventions import REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL
-from .planner import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, PushPlanner, yaw_of
+from .planner import PushPlanner
 from .session import PushSession, goal_errors
+from .types import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, yaw_of
 
 #: Execution modes: apply the planned impulse at the contact point, or set the planned velocities directly.
 EXECUTE_MODES = ("impulse", "velocity")

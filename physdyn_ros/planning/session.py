@@ -30,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-from .planner import Goal, Pose2D, TableBounds, wrap_angle
+from .types import Goal, Pose2D, TableBounds, wrap_angle
 
 #: Outcomes of an episode: the goal reached, or why not. `refused`: the planner found no safe push (or the
 #: request was invalid); `toppled`: the object fell over; `out_of_pushes`: max_pushes used without reaching the

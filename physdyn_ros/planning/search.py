@@ -1,0 +1,359 @@
+"""The search behind PushPlanner.plan: one cross-entropy-method run over candidate pushes of one object.
+
+Search: the cross-entropy method (CEM) over four numbers per candidate push, (vx, vy, f, h): the horizontal
+velocity of the COM, where the line of push passes the COM (a fraction f in [-1, 1] of the object's extent across
+the push at that height) and the contact height h (a fraction of the heights the pusher can reach on this object,
+config min/max_contact_height). The contact point is the first observed surface point on that line (planning.body),
+and the angular velocity follows from the impulse there: every candidate is a push a single contact can make; a low
+contact tips the object back against its topple. Each iteration rolls all candidates out with one `rollout_batch`
+call and keeps the elite fraction; the first iteration puts up to 16 candidates (at most half) at the Coulomb-
+sliding solution (`Search.analytic_seeds`: the speed sqrt(2 mu g d) toward the goal and, per contact height, the
+offset whose spin turns the object to the goal's yaw under sliding; each seed and three jittered copies), the rest
+around the straight-line guess, gentle and low pushes included; later ones sample a Gaussian fitted to the elites.
+Iterations stop when the time budget would be exceeded by the next one (cost per rolled-out step is measured on the
+fly). The learned model rolls out only the search horizon (`head_timing=False`: its topple probability over those
+steps is the whole push's), not the 60 steps a timed prediction needs: 3-4x the candidates per budget
+(bench_planning's first pushes: 350-480 roll-outs in 0.2 s against 90-170).
+
+Robustness: the best `robust_candidates` distinct elites are rolled out again under `robust_samples` small
+perturbations each (speed, direction, offset, height: what a robot's execution and the perception get wrong).
+The push whose perturbed outcomes cost least on average, and whose topple probability under that noise (the
+mean over the push and its perturbations) stays under the limit, wins; its spread (RMS distance of the
+perturbed rest positions from the nominal one) and that probability are reported. When none of them is safe
+under that noise (a search that converged at the edge of the topple limit), the best pushes of the whole search
+whose own risk lies under half the limit are checked the same way before the plan is refused. (Requiring every perturbed
+push to stay under the limit refused 10 of 42 bench trials against 3, with as many topples: 52 % against 62 %
+within three pushes, bench_planning.py --iterations 3.)
+
+Cost of a candidate (lower is better), from its predicted final state:
+    (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)
+    + (final speed / 0.1 m/s)^2, that speed taken from the last step's displacement (a trajectory still moving
+      at the horizon has not reached its final pose)
+    + 2 * topple probability + 1000 if the topple probability exceeds the limit or the COM leaves the table.
+
+When no safe push reaches the goal, the safe push that gets closest wins (the closed loop pushes again).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from ..conventions import GRAVITY
+from ..learn.baselines import horizontal_radius
+from ..learn.prior import MIN_RADIUS
+from ..predictor import Predictor, Trajectory, TrajectoryBatch
+from .body import BodyError, PushBody
+from .models import DynamicsModel
+from .types import Goal, PlannerConfig, PlanningError, Pose2D, wrap_angle, yaw_of
+
+__all__ = ["INFEASIBLE", "MOVING_SCALE", "Candidate", "Search", "StepCost", "final_speed", "tip_probability"]
+
+#: Penalty added to candidates that break a hard limit (topple probability, table edge).
+INFEASIBLE = 1000.0
+#: Final speed (m/s) that costs as much as one tolerance of position error.
+MOVING_SCALE = 0.1
+
+
+#: Tipping energy ratio at which tip_probability is 1 - 1/e: a 4 x 4 x 16 cm box in pybullet stayed up at ratios
+#: up to 0.33 and toppled from 0.5 (test_planning.py::test_tip_estimate_agrees_with_pybullet).
+TIP_SCALE = 0.6
+
+
+def tip_probability(ratio: np.ndarray) -> np.ndarray:
+    """Topple risk from PushBody.tip_ratios: 1 - exp(-(r / TIP_SCALE)^2) (0.26 at r = 0.33, 0.50 at r = 0.5)."""
+    return 1.0 - np.exp(-(np.asarray(ratio) / TIP_SCALE) ** 2)
+
+
+def final_speed(positions: np.ndarray, dt: float) -> np.ndarray:
+    """Horizontal speed (B,) over the last step of trajectories (B, T, 3), from the displacement.
+
+    Not the fed-back velocity: the learned model's velocity channel can keep an offset after its predicted pose
+    has stopped (bench/speed_bins.py: median 0.21 m/s on 0.4-0.8 m/s pushes whose positions were at rest), which
+    made every short corrective push look unfinished to the planner.
+    """
+    return np.linalg.norm(positions[:, -1, :2] - positions[:, -2, :2], axis=-1) / dt
+
+
+class StepCost:
+    """Measured wall time of rolling one candidate out by one step (s): a running average kept by the planner
+    across its searches, so that each search sizes its batches to the time left from the start."""
+
+    def __init__(self) -> None:
+        self.seconds: Optional[float] = None  # None until the first batch was timed
+
+    def update(self, per_step: float) -> None:
+        self.seconds = per_step if self.seconds is None else 0.5 * self.seconds + 0.5 * per_step
+
+
+@dataclass
+class Candidate:
+    cost: float
+    direction: np.ndarray  # (2,)
+    speed: float
+    fraction: float
+    height_fraction: float
+    offset: float
+    contact: np.ndarray  # (3,) table frame
+    ang_vel: np.ndarray
+    pos_err: float
+    yaw_err: float
+    topple: float
+    off_table: bool
+    trajectory: Trajectory
+    robust_cost: float = math.inf  # mean cost over the perturbed pushes (robustness check)
+    robust_topple: float = 0.0  # mean topple probability over the push and its perturbed pushes
+    spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.array([self.speed * self.direction[0], self.speed * self.direction[1], self.fraction,
+                         self.height_fraction])
+
+
+#: Perturbations of the robustness check (standard deviations): relative speed, direction (rad), offset
+#: fraction, height (m).
+PERTURB_SPEED, PERTURB_ANGLE, PERTURB_FRACTION, PERTURB_HEIGHT = 0.08, math.radians(4.0), 0.08, 0.01
+
+
+class Search:
+    """One CEM run (state shared by the iterations and the robustness check)."""
+
+    def __init__(self, model: DynamicsModel, step_cost: StepCost, code: Any, body: PushBody, start: Pose2D,
+                 goal: Goal, cfg: PlannerConfig, horizon: int, t0: float) -> None:
+        self.model, self.step_cost, self.code, self.body = model, step_cost, code, body
+        self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
+        self.deadline = t0 + cfg.time_budget
+        robust = cfg.robust_candidates > 0 and cfg.robust_samples > 0
+        self.cem_deadline = t0 + cfg.time_budget * ((1.0 - cfg.robust_share) if robust else 1.0)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.iterations = 0
+        self.rollouts = 0
+        self.checked = False
+        self.seen: list[Candidate] = []  # every candidate of the CEM iterations
+        # the learned model's topple probability over the search horizon is the whole push's (not the prefix of a
+        # 60-step run: the outcome matters, and 16 steps cost 16)
+        self.extra = {"head_timing": False} if isinstance(self.model, Predictor) else {}
+        self.z0 = float(np.asarray(code.centroid)[2])
+        try:
+            self.h_lo, self.h_hi = body.height_range(cfg.min_contact_height, cfg.max_contact_height)
+        except BodyError as exc:
+            raise PlanningError(str(exc)) from None
+        delta = goal.pose.xy - start.xy
+        self.dist = float(np.linalg.norm(delta))
+        self.heading = math.atan2(delta[1], delta[0]) if self.dist > 1e-9 else start.yaw
+        # Coulomb guess for the speed; spin and toppling change it, CEM finds the rest
+        self.speed0 = float(np.clip(math.sqrt(2 * cfg.friction * GRAVITY * max(self.dist, 1e-3)),
+                                    cfg.min_speed, cfg.max_speed))
+
+    # -- candidates --------------------------------------------------------------------------------------
+    def _first(self, n: int) -> np.ndarray:
+        """(n, 4) params (vx, vy, f, h): up to four per seed (at most half of n) at the Coulomb-sliding solution
+        (analytic_seeds: the speed and the offset that slide to the goal and turn to its yaw, at several heights;
+        each seed and three jittered copies), the rest a broad spread around the straight-line push, gentle and
+        low pushes included (they are the ones that do not topple tall objects)."""
+        seeds = self.analytic_seeds()
+        n_seed = min(n // 2, 4 * len(seeds))
+        n_wide = n - n_seed
+        ang = self.heading + self.rng.uniform(-0.7, 0.7, n_wide)
+        speed = self.speed0 * np.exp(self.rng.uniform(np.log(0.3), np.log(2.0), n_wide))
+        f = self.rng.uniform(-self.cfg.max_offset_fraction, self.cfg.max_offset_fraction, n_wide)
+        h = np.where(np.arange(n_wide) % 2 == 0, self.rng.uniform(0.0, 0.3, n_wide), self.rng.uniform(0.0, 1.0, n_wide))
+        wide = np.stack([speed * np.cos(ang), speed * np.sin(ang), f, h], axis=1)
+        wide[0] = [self.speed0 * math.cos(self.heading), self.speed0 * math.sin(self.heading), 0.0, 0.0]
+        if n_seed == 0:
+            return wide
+        near = seeds[np.arange(n_seed) % len(seeds)].copy()
+        exact = min(len(seeds), n_seed)
+        near[exact:] += self.rng.normal(0.0, 1.0, (n_seed - exact, 4)) * np.array(
+            [0.05 * self.speed0, 0.05 * self.speed0, 0.05, 0.05])  # the seeds themselves, then jittered copies
+        return np.concatenate([near, wide])
+
+    def analytic_seeds(self, heights: int = 4, offsets: int = 33) -> np.ndarray:
+        """(K, 4) pushes that reach the goal under Coulomb sliding (learn/prior.py's model: constant deceleration
+        mu g of the speed, mu g / r of the spin, r the cloud's RMS horizontal radius): speed sqrt(2 mu g d) toward
+        the goal and, at each of `heights` contact heights, the line offset whose impulse spins the object at
+        sqrt(2 (mu g / r) |turn|) toward the goal's yaw (the offsets tried: `offsets` across the object). With
+        the yaw ignored, the centred push at each height. The learned model then corrects what sliding misses
+        (spin-slide coupling, tilt); a CEM started only around the straight push needed 2 s instead of 0.2 s to
+        find pushes within tolerance (bench/bench_planning.py trials)."""
+        cfg = self.cfg
+        speed = self.speed0
+        d = np.array([math.cos(self.heading), math.sin(self.heading)])
+        hf = (np.arange(heights) + 0.5) / heights
+        if self.goal.ignores_yaw:
+            return np.array([[speed * d[0], speed * d[1], 0.0, h] for h in hf])
+        turn = float(wrap_angle(self.goal.pose.yaw - self.start.yaw))
+        radius = max(float(horizontal_radius(self.body.points[None])[0]), MIN_RADIUS)  # the prior's spin lever
+        want = math.copysign(math.sqrt(2.0 * cfg.friction * GRAVITY / radius * abs(turn)), turn)
+        f = np.linspace(-cfg.max_offset_fraction, cfg.max_offset_fraction, offsets)
+        ff, hh = np.meshgrid(f, hf)  # (H, F)
+        dirs = np.tile(d, (ff.size, 1))
+        contacts, _ = self.body.contacts(dirs, ff.ravel(), self.h_lo + hh.ravel() * (self.h_hi - self.h_lo))
+        v = np.concatenate([speed * dirs, np.zeros((ff.size, 1))], axis=1)
+        wz = self.body.angular_velocity(v, contacts)[:, 2].reshape(hh.shape)
+        best = np.argmin(np.abs(wz - want), axis=1)  # per height
+        return np.array([[speed * d[0], speed * d[1], f[j], h] for j, h in zip(best, hf)])
+
+    def _project(self, params: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Clip to the feasible set: speed within limits, offset within the lever fraction, height reachable."""
+        v = params[:, :2]
+        s = np.linalg.norm(v, axis=1)
+        d = np.where(s[:, None] > 1e-9, v / np.maximum(s, 1e-12)[:, None],
+                     np.array([math.cos(self.heading), math.sin(self.heading)]))
+        s = np.clip(s, self.cfg.min_speed, self.cfg.max_speed)
+        f = np.clip(params[:, 2], -self.cfg.max_offset_fraction, self.cfg.max_offset_fraction)
+        return d, s, f, np.clip(params[:, 3], 0.0, 1.0)
+
+    def evaluate(self, params: np.ndarray, keep: bool = True) -> list[Candidate]:
+        """Roll out candidate pushes (n, 4); keep: remember them in self.seen (the robustness fallback's pool)."""
+        d, s, f, hf = self._project(params)
+        contacts, e = self.body.contacts(d, f, self.h_lo + hf * (self.h_hi - self.h_lo))
+        v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
+        w = self.body.angular_velocity(v, contacts)
+        p0 = np.array([self.start.x, self.start.y, self.z0])
+        t = time.perf_counter()
+        try:
+            batch = self.model.rollout_batch(self.code, v, w, horizon=self.horizon, positions=p0, **self.extra)
+        except ValueError as exc:  # e.g. a shape code from another model
+            raise PlanningError(f"the dynamics model refused the request: {exc}") from None
+        spent = time.perf_counter() - t
+        per_step = spent / (len(s) * self.horizon)
+        self.step_cost.update(per_step)
+        self.rollouts += len(s)
+        tip = self.body.tip_ratios(v, w, self.cfg.friction) if self.cfg.tip_check else None
+        costs, pos_err, yaw_err, topple, off = self.costs(batch, tip)
+        costs = costs + INFEASIBLE * (np.linalg.norm(w, axis=1) > self.cfg.max_spin)
+        cands = [Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(hf[i]), float(e[i]), contacts[i],
+                            w[i], float(pos_err[i]), float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i])
+                 for i in range(len(s))]
+        if keep:
+            self.seen.extend(cands)
+        return cands
+
+    def costs(self, batch: TrajectoryBatch, tip: Optional[np.ndarray] = None) -> tuple[np.ndarray, ...]:
+        g, cfg = self.goal, self.cfg
+        final = batch.positions[:, -1, :2]
+        pos_err = np.linalg.norm(final - g.pose.xy, axis=1)
+        yaw = self.start.yaw + yaw_of(batch.orientations[:, -1])
+        yaw_err = np.abs(wrap_angle(yaw - g.pose.yaw))
+        topple = batch.topple_prob.max(axis=1)
+        if tip is not None:
+            topple = np.maximum(topple, tip_probability(tip))
+        speed_end = final_speed(batch.positions, float(self.model.dt))
+        cost = (pos_err / g.position_tolerance) ** 2 + (speed_end / MOVING_SCALE) ** 2 + 2.0 * topple
+        if not g.ignores_yaw:
+            cost = cost + (yaw_err / g.yaw_tolerance) ** 2
+        off: np.ndarray = np.zeros(len(cost), dtype=bool)
+        if cfg.table is not None:
+            off = np.logical_not(np.all(cfg.table.contains(batch.positions[..., :2]), axis=1))
+        cost = cost + INFEASIBLE * ((topple > cfg.max_topple_probability) | off)
+        cost = np.where(np.isfinite(cost), cost, np.inf)  # a diverging model must never win
+        return cost, pos_err, yaw_err, topple, off
+
+    def _batch_size(self, deadline: float) -> int:
+        """Candidates that fit before `deadline` (a 32-candidate probe while the cost is unknown)."""
+        n = self.cfg.samples
+        per = self.step_cost.seconds
+        if per is None:
+            return min(n, 32)
+        left = deadline - time.perf_counter()
+        fit = int(0.85 * left / max(per * self.horizon, 1e-9))
+        return min(n, fit)
+
+    # -- CEM -----------------------------------------------------------------------------------------------
+    def run(self) -> Candidate:
+        cfg = self.cfg
+        lo = np.array([-cfg.max_speed, -cfg.max_speed, -cfg.max_offset_fraction, 0.0])
+        hi = np.array([cfg.max_speed, cfg.max_speed, cfg.max_offset_fraction, 1.0])
+        std_floor = np.array([0.01, 0.01, 0.02, 0.02])
+        best: Optional[Candidate] = None
+        elites: list[Candidate] = []
+        mean: Optional[np.ndarray] = None
+        std: Optional[np.ndarray] = None
+        while self.iterations < cfg.max_iterations:
+            n = self._batch_size(self.cem_deadline)
+            if self.iterations > 0 and n < 8:
+                break  # the budget is spent
+            n = max(n, 8)
+            if mean is None or std is None:
+                params = self._first(n)
+            else:
+                params = np.clip(mean + std * self.rng.standard_normal((n, 4)), lo, hi)
+            cands = self.evaluate(params)
+            self.iterations += 1
+            # elitism: last iteration's elites compete again (roll-outs are deterministic: no re-evaluation)
+            pool = sorted(cands + elites, key=lambda c: c.cost)
+            k = max(4, int(round(cfg.elite_fraction * len(cands))))
+            elites = pool[:k]
+            if best is None or elites[0].cost < best.cost:
+                best = elites[0]
+            ep = np.array([c.params for c in elites])
+            new_mean, new_std = ep.mean(axis=0), ep.std(axis=0) + std_floor
+            mean = new_mean if mean is None else 0.9 * new_mean + 0.1 * mean
+            std = new_std if std is None else 0.8 * new_std + 0.2 * std
+            if best.cost < 0.05 and cfg.robust_candidates == 0:  # far inside the tolerances: more buys nothing
+                break
+        assert best is not None
+        return self.robust(elites, best)
+
+    def robust(self, elites: list[Candidate], best: Candidate) -> Candidate:
+        """Re-check the best distinct elites under perturbed execution; the most robust safe one wins. When none
+        of them is safe under that noise (the search converged on risky pushes), the best pushes of the whole
+        search whose own topple risk lies under half the limit are checked the same way."""
+        cfg = self.cfg
+        k, m = cfg.robust_candidates, cfg.robust_samples
+        if k == 0 or m == 0:
+            return best
+        chosen = _distinct(elites, k)
+        if not chosen:
+            return best
+        self._perturb(chosen, m)
+        safe = [c for c in chosen if c.robust_topple <= cfg.max_topple_probability]
+        if not safe:
+            calm = sorted((c for c in self.seen if c.topple <= 0.5 * cfg.max_topple_probability), key=lambda c: c.cost)
+            # within the budget if it allows (at least one candidate: a refusal must have looked)
+            room = max(1, min(k, self._batch_size(self.deadline) // m))
+            fallback = [c for c in _distinct(calm, k) if all(c is not o for o in chosen)][:room]
+            if fallback:
+                self._perturb(fallback, m)
+                safe = [c for c in fallback if c.robust_topple <= cfg.max_topple_probability]
+                chosen += fallback
+        return min(safe or chosen, key=lambda c: c.robust_cost)
+
+    def _perturb(self, chosen: list[Candidate], m: int) -> None:
+        """Roll each candidate out again under m perturbations (speed, direction, offset, height); fills its
+        robust_cost, robust_topple and spread."""
+        base = np.array([c.params for c in chosen])  # (K, 4)
+        speed = np.hypot(base[:, 0], base[:, 1])[:, None] * np.exp(PERTURB_SPEED * self.rng.standard_normal((len(
+            chosen), m)))
+        ang = np.arctan2(base[:, 1], base[:, 0])[:, None] + PERTURB_ANGLE * self.rng.standard_normal((len(chosen), m))
+        frac = base[:, 2:3] + PERTURB_FRACTION * self.rng.standard_normal((len(chosen), m))
+        span = max(self.h_hi - self.h_lo, 1e-6)
+        height = base[:, 3:4] + PERTURB_HEIGHT / span * self.rng.standard_normal((len(chosen), m))
+        params = np.stack([speed * np.cos(ang), speed * np.sin(ang), frac, height], axis=-1).reshape(-1, 4)
+        perturbed = self.evaluate(params, keep=False)
+        self.checked = True
+        for i, c in enumerate(chosen):
+            group = perturbed[i * m:(i + 1) * m]
+            c.robust_cost = float(np.mean([min(p.cost, INFEASIBLE) for p in group] + [c.cost]))
+            # the push's topple probability under execution noise: the mean over it and its perturbations
+            c.robust_topple = float(np.mean([c.topple] + [p.topple for p in group]))
+            finals = np.array([p.trajectory.positions[-1, :2] for p in group])
+            c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
+
+
+def _distinct(cands: list[Candidate], k: int) -> list[Candidate]:
+    """The first k feasible candidates each a little different from those before it (cands sorted by cost)."""
+    chosen: list[Candidate] = []
+    for c in cands:
+        if c.cost >= INFEASIBLE:
+            break
+        if all(np.abs(c.params - o.params).max() > 1e-3 for o in chosen):
+            chosen.append(c)
+        if len(chosen) == k:
+            break
+    return chosen

@@ -1,0 +1,223 @@
+"""The planner's value types: poses, goals, the table, the planner's parameters and the plan it returns.
+
+Every constructor checks its numbers (finite, positive where it must be) and raises PlanningError, a ValueError
+with the reason, so a bad request is refused before any search runs.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from ..conventions import GRAVITY
+from ..predictor import Trajectory
+from ..shapes.core import DEFAULT_DENSITY
+
+__all__ = ["Goal", "PlannerConfig", "PlanningError", "Pose2D", "PushPlan", "TableBounds", "finite", "wrap_angle",
+           "yaw_of"]
+
+
+class PlanningError(ValueError):
+    """The request cannot be planned; the message says why (bad input, unreachable goal, every push topples)."""
+
+
+def wrap_angle(a: Union[float, np.ndarray]) -> Union[float, np.ndarray]:
+    """Angle(s) wrapped into [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi if isinstance(a, np.ndarray) else \
+        (float(a) + math.pi) % (2 * math.pi) - math.pi
+
+
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Yaw (rad) of the x axis projected on the table, for (..., 4) quaternions (x, y, z, w)."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def finite(value: Any, name: str) -> float:
+    """`value` as a float; PlanningError naming `name` if it is not a finite number."""
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise PlanningError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(f):
+        raise PlanningError(f"{name} is not finite ({f})")
+    return f
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """A pose on the table: x, y of the centre of mass (m, table frame) and yaw (rad) of the object."""
+
+    x: float
+    y: float
+    yaw: float
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "yaw"):
+            object.__setattr__(self, name, finite(getattr(self, name), f"pose {name}"))
+
+    @classmethod
+    def of(cls, value: Union["Pose2D", Any], name: str = "pose") -> "Pose2D":
+        """A Pose2D from a Pose2D or three numbers (x, y, yaw)."""
+        if isinstance(value, Pose2D):
+            return value
+        try:
+            x, y, yaw = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise PlanningError(f"{name} must be (x, y, yaw), got {value!r}") from None
+        try:
+            return cls(x, y, yaw)
+        except PlanningError as exc:
+            raise PlanningError(f"{name}: {exc}") from None
+
+    @property
+    def xy(self) -> np.ndarray:
+        return np.array([self.x, self.y])
+
+
+@dataclass(frozen=True)
+class Goal:
+    """Where the object should come to rest. yaw_tolerance >= pi means any yaw is fine."""
+
+    pose: Pose2D
+    position_tolerance: float = 0.02  # m
+    yaw_tolerance: float = math.radians(10.0)  # rad
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose", Pose2D.of(self.pose, "goal pose"))
+        for name in ("position_tolerance", "yaw_tolerance"):
+            v = finite(getattr(self, name), name)
+            if v <= 0:
+                raise PlanningError(f"{name} must be positive, got {v}")
+            object.__setattr__(self, name, v)
+
+    @property
+    def ignores_yaw(self) -> bool:
+        return self.yaw_tolerance >= math.pi
+
+
+@dataclass(frozen=True)
+class TableBounds:
+    """Axis-aligned table top (m, table frame); the COM must stay inside."""
+
+    x_min: float = -1.0
+    x_max: float = 1.0
+    y_min: float = -1.0
+    y_max: float = 1.0
+
+    def __post_init__(self) -> None:
+        vals = [finite(getattr(self, k), f"table {k}") for k in ("x_min", "x_max", "y_min", "y_max")]
+        if not (vals[0] < vals[1] and vals[2] < vals[3]):
+            raise PlanningError(f"table bounds must have min < max, got {vals}")
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=np.float64)
+        return ((xy[..., 0] >= self.x_min) & (xy[..., 0] <= self.x_max)
+                & (xy[..., 1] >= self.y_min) & (xy[..., 1] <= self.y_max))
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Planner parameters (docs/planning.md lists them with their measured effect)."""
+
+    max_speed: float = 1.5  # m/s, fastest initial COM speed a push may give
+    min_speed: float = 0.05  # m/s, slowest push considered
+    max_topple_probability: float = 0.35  # candidates predicted to topple more likely than this are rejected
+    time_budget: float = 0.5  # s, wall time of one plan() call (at least one batch always runs)
+    samples: int = 128  # candidates per CEM iteration
+    elite_fraction: float = 0.1  # share of candidates that shape the next iteration (at least 4)
+    max_iterations: int = 8  # CEM iterations at most (fewer when the budget runs out)
+    horizon: int = 0  # steps rolled out; 0 = long enough to stop: (max_speed / (min_friction g) + settle) / dt
+    settle_time: float = 0.6  # s added to the stopping time for the automatic horizon (wobble, spin)
+    friction: float = 0.5  # nominal Coulomb friction: the initial speed guess sqrt(2 mu g d)
+    min_friction: float = 0.35  # lowest friction expected: the reach bound v^2 / (2 mu g)
+    max_offset_fraction: float = 0.85  # how far off the COM the line of push may pass, share of the lever limit
+    min_contact_height: float = 0.005  # m above the table: lowest point the pusher can touch
+    max_contact_height: float = 0.5  # m above the table: highest point the pusher can touch
+    robust_candidates: int = 6  # distinct elites re-checked under perturbations (0 = no robustness check)
+    robust_samples: int = 6  # perturbed roll-outs per re-checked elite
+    robust_share: float = 0.25  # share of the time budget kept for the robustness check
+    tip_check: bool = True  # also count the rigid-body tipping estimate (PushBody.tip_ratios) as topple risk
+    max_spin: float = 40.0  # rad/s, pushes giving a faster initial angular velocity are infeasible (the model was
+    #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
+    table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
+    density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
+    seed: int = 0  # candidate sampling is deterministic for a given seed
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
+                     "density", "max_spin"):
+            v = finite(getattr(self, name), name)
+            if v <= 0:
+                raise PlanningError(f"{name} must be positive, got {v}")
+        if self.min_speed >= self.max_speed:
+            raise PlanningError(f"min_speed {self.min_speed} must be below max_speed {self.max_speed}")
+        if not 0 <= finite(self.max_topple_probability, "max_topple_probability") <= 1:
+            raise PlanningError(f"max_topple_probability must be in [0, 1], got {self.max_topple_probability}")
+        if not 0 < finite(self.max_offset_fraction, "max_offset_fraction") <= 1:
+            raise PlanningError(f"max_offset_fraction must be in (0, 1], got {self.max_offset_fraction}")
+        if not 0 < finite(self.elite_fraction, "elite_fraction") <= 1:
+            raise PlanningError(f"elite_fraction must be in (0, 1], got {self.elite_fraction}")
+        lo, hi = finite(self.min_contact_height, "min_contact_height"), finite(self.max_contact_height,
+                                                                                 "max_contact_height")
+        if not 0 <= lo < hi:
+            raise PlanningError(f"contact heights must satisfy 0 <= min_contact_height < max_contact_height, got "
+                                f"{lo:g}, {hi:g}")
+        if not 0 <= finite(self.robust_share, "robust_share") < 1:
+            raise PlanningError(f"robust_share must be in [0, 1), got {self.robust_share}")
+        optional = ("horizon", "robust_candidates", "robust_samples")
+        for name in ("samples", "max_iterations") + optional:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in optional else 1):
+                kind = 'non-negative' if name in optional else 'positive'
+                raise PlanningError(f"{name} must be a {kind} integer, got {v!r}")
+        if self.samples < 8:
+            raise PlanningError(f"samples must be >= 8, got {self.samples}")
+
+    def reach(self) -> float:
+        """Farthest a push of max_speed can slide at the lowest expected friction (m)."""
+        return self.max_speed ** 2 / (2.0 * self.min_friction * GRAVITY)
+
+    def auto_horizon(self, dt: float, max_horizon: int) -> int:
+        if self.horizon:
+            return int(min(self.horizon, max_horizon))
+        t = self.max_speed / (self.min_friction * GRAVITY) + self.settle_time
+        return int(min(max(math.ceil(t / dt), 5), max_horizon))
+
+
+@dataclass(frozen=True)
+class PushPlan:
+    """The chosen push and what the model predicts it does."""
+
+    lin_vel: np.ndarray  # (3,) m/s, COM velocity right after the push (world frame)
+    ang_vel: np.ndarray  # (3,) rad/s, angular velocity right after the push (world frame)
+    impulse: np.ndarray  # (3,) N s, = mass * lin_vel, horizontal
+    contact_point: np.ndarray  # (3,) m, table frame: a point of the observed surface where the impulse is applied
+    mass: float  # kg, the mass used for the impulse (given, or the hull / box estimate)
+    offset: float  # m, signed distance of the line of push from the COM (+: left of the push direction)
+    contact_height: float  # m above the table (= contact_point z)
+    start: Pose2D
+    goal: Goal
+    final_pose: Pose2D  # predicted rest pose
+    final_position: np.ndarray  # (3,) predicted final COM
+    position_error: float  # m, predicted final distance to the goal
+    yaw_error: float  # rad, predicted |final yaw - goal yaw| (0 when the goal ignores yaw)
+    topple_probability: float  # predicted probability of toppling during the push
+    robust_topple_probability: float  # mean topple probability over this push and its perturbations (robustness)
+    spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
+    within_tolerance: bool  # the predicted final pose is within both tolerances
+    trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
+    planning_time: float  # s, wall time of the plan() call
+    iterations: int  # CEM iterations run
+    rollouts: int  # candidates rolled out in all
+    horizon: int  # steps per roll-out
+    body_source: str  # "hull" (from points) or "box" (shape code only): where contact point and mass came from
+    model_id: str
+    message: str
+
+    @property
+    def speed(self) -> float:
+        return float(np.linalg.norm(self.lin_vel[:2]))
