@@ -6,7 +6,8 @@ from .core import DEFAULT_DENSITY, MassProperties, Shape, convex_hull, make_shap
     shape_from_points
 from .meshes import PYBULLET_DATA_CATEGORY, load_mesh, pybullet_data_meshes, pybullet_data_shapes
 from .families import ALL_CATEGORIES, FAMILIES, FAMILY_CATALOGUE, HELD_OUT_FAMILIES
-from .procedural import CATEGORIES, generate_shapes, make_procedural, shape_seed
+from .paper import CATEGORIES, shape_seed
+from .procedural import generate_shapes, make_procedural
 from .resolve import resolve_shape
 
 __all__ = ["ALL_CATEGORIES", "CATEGORIES", "DEFAULT_DENSITY", "FAMILIES", "FAMILY_CATALOGUE", "HELD_OUT_FAMILIES",

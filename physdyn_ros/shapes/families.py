@@ -1,7 +1,7 @@
 """A broad training world: procedural shape families beyond the paper's six categories.
 
-Every family is a parametric generator drawn from a shape seed (like `procedural.py`'s categories, which stay
-as they are): wide continuous parameter ranges at tabletop sizes (largest extent about 4-40 cm), so each family
+Every family is a parametric generator drawn from a shape seed (like the paper's categories of `paper.py`, which
+stay as they are): wide continuous parameter ranges at tabletop sizes (largest extent about 4-40 cm), so each family
 yields as many distinct shapes as seeds. Shapes are closed, outward meshes with z up, resting upright on a face
 of their convex hull with the centre of mass over the support polygon, re-centred on the centre of mass by
 `make_shape`. Mass and inertia come from the mesh at uniform density, as for every shape.
@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from .core import Shape, convex_hull, make_shape, mass_properties
-from .procedural import CATEGORIES, lathe, shape_seed
+from .paper import CATEGORIES, lathe, shape_seed
 from .solids import (box_points, ellipsoid_points, flat_phase, frustum_points, lathe_sections, polygon,
                      rest_on_stable_face, rotate_to_axis, support_margin, union_surface)
 

@@ -78,7 +78,7 @@ def rotate_to_axis(points: np.ndarray, axis: str) -> np.ndarray:
 
 def lathe_sections(radii: np.ndarray, heights: np.ndarray, segments: int, phase: float = 0.0) -> list[np.ndarray]:
     """Convex pieces (frustums between consecutive rings) of the solid of revolution with rings (radii[i], z =
-    heights[i]), as vertex arrays: together they are the solid `procedural.lathe` builds from that profile."""
+    heights[i]), as vertex arrays: together they are the solid `paper.lathe` builds from that profile."""
     ring = polygon(segments, 1.0, phase)
     return [frustum_points(ring * r0, z0, ring * r1, z1)
             for r0, r1, z0, z1 in zip(radii[:-1], radii[1:], heights[:-1], heights[1:])]
