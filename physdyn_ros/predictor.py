@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from . import geometry as geo
 from .conventions import DT
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
-from .learn.support import descriptor_points, support_descriptors
+from .learn.support import DESCRIPTOR_POINTS, support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -294,10 +294,9 @@ class Predictor:
         if self._topple is not None:
             # the table under each object in its cloud's frame C, centred at its centroid
             table = heights - np.array([c.centroid[2] for c in canon])
-            dense = descriptor_points(self._topple.inputs)
-            points = sub if not dense else np.stack([loc[self._subset(len(p), dense)] for loc, p in zip(local, pts)]
-                                                    ).astype(np.float32)  # as training's (float32 tensors)
-            desc = support_descriptors(points, offsets, self._topple.inputs, table)
+            points = np.stack([loc[self._subset(len(p), DESCRIPTOR_POINTS)] for loc, p in zip(local, pts)]
+                              ).astype(np.float32)  # as training's (float32 tensors)
+            desc = support_descriptors(points, offsets, table)
             features = np.concatenate([features, desc.astype(np.float32)], axis=1)
         codes = []
         for c, loc, p, feature, offset in zip(canon, local, pts, features, offsets):

@@ -221,7 +221,7 @@ def test_removed_options_load_at_their_off_values_and_are_refused_when_on(tmp_pa
     path = random_checkpoint(tmp_path / "new.pt")
     ckpt = torch.load(path, weights_only=True)
     want, _ = load_model(path)
-    for (section, key), (off, _) in RETIRED.items():
+    for (section, key), (off, _, only_with) in RETIRED.items():
         old = copy.deepcopy(ckpt)
         old["config"][section][key] = 3 if off is ANY else off
         torch.save(old, tmp_path / "old.pt")
@@ -230,6 +230,9 @@ def test_removed_options_load_at_their_off_values_and_are_refused_when_on(tmp_pa
         if off is ANY:
             continue
         old["config"][section][key] = True if isinstance(off, bool) else off + 1
+        if only_with is not None:  # it mattered only with `only_with` on: any value loads without it
+            assert resolve_config(old["config"]) == resolve_config(ckpt["config"]), key
+            old["config"][section][only_with] = True
         with pytest.raises(ValueError, match=f"{section}.{key} = .* needs"):
             resolve_config(old["config"])
         if section == "model":

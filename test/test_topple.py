@@ -1,5 +1,5 @@
-"""The whole-push topple head (issue 11): support descriptors, the probability rules, fitting, and the
-Predictor / evaluation paths that apply it."""
+"""The whole-push topple head: support descriptors, the probability rules, fitting, and the Predictor / evaluation
+paths that apply it."""
 from __future__ import annotations
 
 import argparse
@@ -13,15 +13,36 @@ from learn_support import random_checkpoint, tiny_dataset
 
 from physdyn_ros import geometry as geo
 from physdyn_ros.conventions import GRAVITY
-from physdyn_ros.learn import rules
+from physdyn_ros.learn import rules, support
 from physdyn_ros.predictor import compose_rotations
-from physdyn_ros.learn.support import DESCRIPTOR_DIM, DESCRIPTOR_DIMS, PUSH_DIM, PUSH_DIMS, SUPPORT_DIRECTIONS, \
-    SUPPORT_GAP_M, completed_cloud, push_quantities, resting_table, support_descriptors, tilt_barriers
+from physdyn_ros.learn.support import DESCRIPTOR_DIM, PUSH_DIM, SUPPORT_DIRECTIONS, SUPPORT_GAP_M, push_quantities, \
+    resting_table, support_descriptors
 
 
 def _surface(mesh: trimesh.Trimesh, n: int = 3000) -> np.ndarray:
     pts = np.asarray(mesh.sample(n, seed=0) if "seed" in mesh.sample.__code__.co_varnames else mesh.sample(n))
     return pts - pts.mean(axis=0)
+
+
+def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = None) -> np.ndarray:
+    """(4N + 1, 3): the points (N, 3), their mirror images through the vertical planes x = com_x, y = com_y and
+    both, and the centre of mass's foot on the table (resting_table), built explicitly: what support_descriptors
+    reads off the points without building it."""
+    pts, c = np.asarray(points, dtype=np.float64), np.asarray(com, dtype=np.float64)
+    flips = np.array([[1.0, 1.0, 1.0], [-1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, -1.0, 1.0]])
+    foot = np.array([c[0], c[1], resting_table(pts[:, 2], table)])
+    return np.concatenate([(c + (pts - c)[None] * flips[:, None]).reshape(-1, 3), foot[None]])
+
+
+def plain_descriptors(points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(DESCRIPTOR_DIM,) the descriptors of the points as they are, nothing completed: the support band from the
+    lowest point and its hull, the points' second moments and tilt barriers (the reference of the tests below)."""
+    z = points[:, 2]
+    z0, height = z.min(), z.max() - z.min()
+    base = points[z < z0 + max(support.BASE_BAND_M, support.BASE_BAND_REL * height)]
+    reach, area = support._support_reach(base[:, :2], com[:2], support._DIRS)
+    tilt = support._barriers(support._tilt_heights(points, com))
+    return np.concatenate([[com[2] - z0, height, area], reach, np.mean((points - com) ** 2, axis=0), tilt])
 
 
 def _reach(desc: np.ndarray, degrees: float) -> float:
@@ -59,8 +80,11 @@ def test_a_lying_cylinder_rests_on_a_line_and_an_offset_com_lies_outside_its_sup
     strip = support_descriptors(np.concatenate([line, above])[None], np.array([[0.0, 0.0, 0.05]]))[0]
     assert _reach(strip, 0) == pytest.approx(0.101, abs=0.002) and _reach(strip, 90) == pytest.approx(0.001)
     box = _surface(trimesh.creation.box(extents=(0.1, 0.1, 0.1)))
-    shifted = support_descriptors(box[None], np.array([[0.08, 0.0, 0.0]]), inputs=2)[0]
+    shifted = plain_descriptors(box, np.array([0.08, 0.0, 0.0]))
     assert _reach(shifted, 0) < -0.02 and _reach(shifted, 180) > 0.1
+    # completed by its mirror images through the centre of mass, the support reaches past it both ways
+    completed = support_descriptors(box[None], np.array([[0.08, 0.0, 0.0]]))[0]
+    assert _reach(completed, 0) > 0.1 and _reach(completed, 180) > 0.1
 
 
 def test_push_quantities_follow_the_tipping_barrier():
@@ -70,7 +94,7 @@ def test_push_quantities_follow_the_tipping_barrier():
     desc[0, 3 + SUPPORT_DIRECTIONS:6 + SUPPORT_DIRECTIONS] = 0.001
     desc[0, 6 + SUPPORT_DIRECTIONS:] = np.where(np.arange(SUPPORT_DIRECTIONS) == 0, 0.02, 0.3)  # low barrier at +x
     q = push_quantities(desc, np.array([[1.0, 0.0, 0.0]]), np.zeros((1, 3)))[0]
-    assert q.shape == (PUSH_DIMS[5],)  # every version's columns; a head reads its leading ones
+    assert q.shape == (PUSH_DIM,)
     speed, front, barrier, kinetic = q[6], q[9], q[13], q[14]
     assert speed == pytest.approx(1.0) and front == pytest.approx(0.05)
     assert barrier == pytest.approx(GRAVITY * (math.hypot(0.1, 0.05) - 0.1))
@@ -86,24 +110,23 @@ def test_push_quantities_follow_the_tipping_barrier():
         push_quantities(desc[:, :30], np.zeros((1, 3)), np.zeros((1, 3)))
 
 
-def test_version_5_weighs_each_direction_of_an_oblique_push_against_its_barrier():
+def test_an_oblique_push_is_weighed_against_the_barrier_of_each_direction():
     """A bar on round weights (a dumbbell lying across y) rolls toward +-y with no barrier and tips over an end
-    toward +-x: a push mostly along x with a small y component rolls it. Version 4's columns see only the steep
-    barrier ahead; version 5's find the roll (the energy toward +y against its barrier) and leave version 4's
-    columns as they were."""
+    toward +-x: a push mostly along x with a small y component rolls it. The barrier straight ahead is the steep
+    one; the last four columns find the roll (the energy toward +y against its barrier)."""
     desc = np.zeros((2, DESCRIPTOR_DIM))
     desc[:, 0], desc[:, 3:3 + SUPPORT_DIRECTIONS] = 0.05, 0.03
     tilt = np.full(SUPPORT_DIRECTIONS, 0.3)
     tilt[[SUPPORT_DIRECTIONS // 4, 3 * SUPPORT_DIRECTIONS // 4]] = 0.003  # +y and -y
     desc[:, 6 + SUPPORT_DIRECTIONS:] = tilt
     q = push_quantities(desc, np.array([[1.0, 0.2, 0.0], [1.0, 0.0, 0.0]]), np.zeros((2, 3)))
-    assert q.shape == (2, PUSH_DIMS[5]) and PUSH_DIMS[4] == PUSH_DIMS[5] - 4
-    ratio, barrier, energy, cosine = q[0, PUSH_DIMS[4]:]
+    assert q.shape == (2, PUSH_DIM)
+    ratio, barrier, energy, cosine = q[0, PUSH_DIM - 4:]
     assert barrier == pytest.approx(0.003) and energy == pytest.approx(0.5 * 0.2 ** 2)
     assert ratio == pytest.approx(math.log((0.02 + 1e-6) / (0.003 + 1e-6)))
     assert cosine == pytest.approx(0.2 / math.hypot(1.0, 0.2))
-    assert q[0, 18] == pytest.approx(0.3)  # version 4's barrier ahead: the steep one
-    straight = q[1, PUSH_DIMS[4]:]  # straight along x: no energy toward y, the barrier ahead decides
+    assert q[0, 18] == pytest.approx(0.3)  # the barrier ahead: the steep one
+    straight = q[1, PUSH_DIM - 4:]  # straight along x: no energy toward y, the barrier ahead decides
     assert straight[1] == pytest.approx(0.3) and straight[3] == pytest.approx(1.0)
 
 
@@ -114,10 +137,13 @@ def test_tilt_barriers_tell_a_rolling_base_from_a_flat_one():
     a = 0.05
     cube = trimesh.creation.box(extents=(2 * a, 2 * a, 2 * a))
     pts = np.concatenate([np.asarray(cube.sample(2000)), np.asarray(cube.vertices)])  # centred on the cube
-    barrier = tilt_barriers(pts, np.zeros(3))
+    barrier = plain_descriptors(pts, np.zeros(3))[6 + SUPPORT_DIRECTIONS:]
     assert barrier.shape == (SUPPORT_DIRECTIONS,)
     for k in (0, 4, 8, 12):  # +x, +y, -x, -y
         assert barrier[k] == pytest.approx(GRAVITY * a * (math.sqrt(2) - 1), rel=1e-6)
+    # the cube is its own mirror image: completing it changes no barrier
+    completed = support_descriptors(pts[None], np.zeros((1, 3)))[0, 6 + SUPPORT_DIRECTIONS:]
+    assert np.allclose(completed, barrier, rtol=0, atol=1e-12)
     cyl = trimesh.creation.cylinder(radius=0.04, height=0.2, sections=64)
     cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))
     desc = support_descriptors(_surface(cyl)[None], np.zeros((1, 3)))[0]
@@ -140,18 +166,18 @@ def _view(points: np.ndarray, azimuth_deg: float, elevation_deg: float) -> np.nd
 
 def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
     """One camera sees two sides and the top of a box standing on the table: the view's lowest points are two
-    edges of the base, and nothing marks the far corner. Completed (inputs version 3: the table's height and the
-    mirror images through the centre of mass's vertical planes) the view gives the whole box's support, height and tilt
+    edges of the base, and nothing marks the far corner. Completed (the table's height and the mirror images
+    through the centre of mass's vertical planes) the view gives the whole box's support, height and tilt
     barriers; the view alone does not."""
     box = trimesh.creation.box(extents=(0.2, 0.1, 0.3))
     pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
     com, table = np.zeros(3), -0.15  # the box's centre of mass, the table under its base
-    whole = support_descriptors(pts[None], com[None], inputs=2)[0]
+    whole = plain_descriptors(pts, com)
     view = _view(pts, 40.0, 35.0)
     far = (view[:, 0] < -0.099).sum() / (pts[:, 0] < -0.099).sum()
     assert len(view) < 0.6 * len(pts) and far < 0.2  # the -x face is not seen (its edge pixels leak)
-    seen = support_descriptors(view[None], com[None], inputs=2)[0]
-    done = support_descriptors(view[None], com[None], inputs=4, table=np.array([table]))[0]
+    seen = plain_descriptors(view, com)
+    done = support_descriptors(view[None], com[None], table=np.array([table]))[0]
     reach = slice(3, 3 + SUPPORT_DIRECTIONS)
     tilt = slice(6 + SUPPORT_DIRECTIONS, None)
     assert np.abs(seen[reach] - whole[reach]).max() > 0.03  # the far corner's side of the base is missing
@@ -159,15 +185,14 @@ def test_a_view_completed_on_the_table_has_the_whole_objects_statics():
     assert done[0] == pytest.approx(0.15, abs=1e-6) and done[1] == pytest.approx(0.3, abs=0.005)
     assert np.abs(done[tilt] - whole[tilt]).max() < 0.02 * whole[tilt].max()
     # a symmetric whole cloud on the table is unchanged by the completion (to the sampling's 1 mm asymmetry)
-    assert np.allclose(support_descriptors(pts[None], com[None], inputs=4, table=np.array([table]))[0], whole,
+    assert np.allclose(support_descriptors(pts[None], com[None], table=np.array([table]))[0], whole,
                        atol=1e-3)
 
 
-def test_version_3_and_4_descriptors_are_those_of_the_completed_cloud():
-    """support_descriptors of inputs versions 3 and 4 read the mirror images off the points (no 4x cloud is
-    built): on one-sided views version 3's equal version 2's descriptors of completed_cloud whatever the table
-    under the view; version 4's too where the table is the lowest point, and all but the support polygon (whose
-    band starts at the lowest point seen) elsewhere."""
+def test_descriptors_are_those_of_the_completed_cloud():
+    """support_descriptors reads the mirror images off the points (no 4x cloud is built): on one-sided views it
+    equals the plain descriptors of completed_cloud where the table is the lowest point, and all but the support
+    polygon (whose band starts at the lowest point seen) where the table lies below it or just above."""
     rng = np.random.default_rng(0)
     polygon = slice(2, 3 + SUPPORT_DIRECTIONS)  # area and reach
     for _ in range(20):
@@ -176,28 +201,25 @@ def test_version_3_and_4_descriptors_are_those_of_the_completed_cloud():
         com = rng.normal(size=3) * 0.01
         low = pts[:, 2].min()
         for table in (low, low - rng.uniform(0.0, 0.03), low + 0.004):
-            slow = support_descriptors(completed_cloud(pts, com, table)[None], com[None], inputs=2)[0]
-            v3 = support_descriptors(pts[None], com[None], inputs=3, table=np.array([table]))[0]
-            assert np.allclose(v3, slow, rtol=0, atol=1e-12)
-            v4 = support_descriptors(pts[None], com[None], inputs=4, table=np.array([table]))[0]
-            same = np.ones(len(v4), dtype=bool)
+            slow = plain_descriptors(completed_cloud(pts, com, table), com)
+            fast = support_descriptors(pts[None], com[None], table=np.array([table]))[0]
+            same = np.ones(len(fast), dtype=bool)
             if table != low:
                 same[polygon] = False
-            assert np.allclose(v4[same], slow[same], rtol=0, atol=1e-12)
+            assert np.allclose(fast[same], slow[same], rtol=0, atol=1e-12)
 
 
 def test_a_cloud_without_its_bottom_slice_keeps_its_support():
     """The perception node removes the points within 5 mm of the table plane: the base outline of a real cloud
-    lies a few mm up, and version 4 reads the support there (within SUPPORT_GAP_M of the table; version 3's
-    band from the table held the foot alone). A view that
-    has not seen its support at all (a ball from 60 deg above: its lowest point 2.5 cm up) rests on the foot of
+    lies a few mm up, and the support is read there (within SUPPORT_GAP_M of the table; a band from the table
+    would hold the foot alone). A view that has not seen its support at all (a ball from 60 deg above: its lowest point 2.5 cm up) rests on the foot of
     its centre of mass alone."""
     box = trimesh.creation.box(extents=(0.1, 0.06, 0.1))
     pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
     com, table = np.zeros((1, 3)), np.array([-0.05])
-    whole = support_descriptors(pts[None], com, inputs=4, table=table)[0]
+    whole = support_descriptors(pts[None], com, table=table)[0]
     cut = pts[pts[:, 2] > table[0] + 0.005]
-    seen = support_descriptors(cut[None], com, inputs=4, table=table)[0]
+    seen = support_descriptors(cut[None], com, table=table)[0]
     reach = slice(3, 3 + SUPPORT_DIRECTIONS)
     assert whole[2] == pytest.approx(0.006, rel=0.1) and seen[2] == pytest.approx(whole[2], rel=0.15)
     assert np.abs(seen[reach] - whole[reach]).max() < 0.004
@@ -205,60 +227,47 @@ def test_a_cloud_without_its_bottom_slice_keeps_its_support():
     ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000)
     top = _view(ball, 30.0, 60.0)
     assert top[:, 2].min() > -0.05 + SUPPORT_GAP_M
-    alone = support_descriptors(top[None], np.zeros((1, 3)), inputs=4, table=np.array([-0.05]))[0]
+    alone = support_descriptors(top[None], np.zeros((1, 3)), table=np.array([-0.05]))[0]
     assert alone[2] < 1e-5 and np.abs(alone[reach]).max() < 0.0015  # a point, inflated by 1 mm
 
 
 def test_a_table_the_object_cannot_rest_on_is_replaced_by_its_lowest_point():
     """The table height comes from the frame (z = 0 of the table frame): a cloud given in another frame (far
-    above the table, or reaching below it) rests on its own lowest point instead, as in inputs version 2."""
+    above the table, or reaching below it) rests on its own lowest point instead."""
     z = np.array([0.02, 0.1, 0.3])
     assert resting_table(z, 0.0) == 0.0  # a view whose lowest visible point is 2 cm up
     assert resting_table(z, None) == 0.02 and resting_table(z, float("nan")) == 0.02
     assert resting_table(z, -0.5) == 0.02  # 52 cm under an object 28 cm tall: not its table
     assert resting_table(z, 0.05) == 0.02  # above the lowest point
     cloud = np.array([[0.1, 0.0, 0.3], [-0.1, 0.05, 0.02], [0.0, -0.05, 0.1]])
-    done = completed_cloud(cloud, np.array([0.01, 0.0, 0.15]), 0.0)
-    assert done.shape == (13, 3) and np.allclose(done[:3], cloud)
-    assert np.allclose(done[3:6, :2], [[-0.08, 0.0], [0.12, 0.05], [0.02, -0.05]])  # x mirrored about 0.01
-    assert np.allclose(done[6:9, :2], [[0.1, 0.0], [-0.1, -0.05], [0.0, 0.05]])  # y mirrored about 0
-    assert np.allclose(done[9:12, :2], [[-0.08, 0.0], [0.12, -0.05], [0.02, 0.05]])  # both
-    assert np.allclose(done[3:12, 2], np.tile(cloud[:, 2], 3)) and np.allclose(done[12], [0.01, 0.0, 0.0])
+    # the centre of mass's height counts from the table it rests on, else from the lowest point
+    com = np.array([[0.01, 0.0, 0.15]])
+    assert support_descriptors(cloud[None], com, table=np.zeros(1))[0, 0] == pytest.approx(0.15)
+    assert support_descriptors(cloud[None], com, table=np.array([-0.5]))[0, 0] == pytest.approx(0.13)
+    assert support_descriptors(cloud[None], com)[0, 0] == pytest.approx(0.13)
     with pytest.raises(ValueError, match="one height per cloud"):
-        support_descriptors(cloud[None], np.zeros((1, 3)), inputs=3, table=np.zeros(2))
+        support_descriptors(cloud[None], np.zeros((1, 3)), table=np.zeros(2))
 
 
-def test_a_version_1_head_reads_the_leading_columns():
-    """Heads fitted before the tilt barriers (inputs version 1, checkpoints without model.topple_inputs) see
-    the same inputs as then: version-1 descriptors and push quantities are the leading columns of version 2's
-    (the Predictor's shape feature of such a model keeps its 22 descriptors), and a head reads its own columns
-    of either."""
-    from physdyn_ros.learn.model import ModelConfig
+def test_the_head_reads_the_descriptors_and_push_quantities_whole():
+    """A head's inputs are the shape feature, the DESCRIPTOR_DIM descriptors and the PUSH_DIM push quantities;
+    its numpy pass (assess) and its torch module agree, and descriptors of another width are refused."""
     from physdyn_ros.learn.topple import ToppleHead
 
-    assert ModelConfig().topple_inputs == 1
-    with pytest.raises(ValueError, match="topple_inputs must be one of"):
-        ModelConfig(topple_inputs=7)
-    old, new = ToppleHead(8, 16, 2, inputs=1), ToppleHead(8, 16, 2, inputs=2)
-    assert DESCRIPTOR_DIMS[2] == DESCRIPTOR_DIM and PUSH_DIMS[2] == PUSH_DIMS[4] == PUSH_DIM - 4  # versions 3, 4: 2's
-    assert old.in_dim == 8 + DESCRIPTOR_DIMS[1] + PUSH_DIMS[1] and new.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIMS[2]
+    head = ToppleHead(8, 16, 2)
+    assert head.in_dim == 8 + DESCRIPTOR_DIM + PUSH_DIM
     rng = np.random.default_rng(0)
     feature = rng.normal(size=(3, 8))
     box = _surface(trimesh.creation.box(extents=(0.1, 0.2, 0.3)))
-    desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)), inputs=2)
+    desc = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)))
     vel, angvel = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
-    desc1 = support_descriptors(np.stack([box] * 3), np.zeros((3, 3)), inputs=1)
-    assert desc1.shape == (3, DESCRIPTOR_DIMS[1]) and np.array_equal(desc1, desc[:, :DESCRIPTOR_DIMS[1]])
-    push1 = push_quantities(desc1, vel, angvel)
-    assert push1.shape == (3, PUSH_DIMS[1]) and np.array_equal(push1, push_quantities(desc, vel, angvel)[:, :18])
-    assert np.array_equal(old.assess(feature, desc1, vel, angvel)[0], old.assess(feature, desc, vel, angvel)[0])
-    with pytest.raises(ValueError, match="needs \\(B, 38\\) support descriptors"):
-        new.assess(feature, desc1, vel, angvel)
-    for head in (old, new):
-        prob, _ = head.assess(feature, desc, vel, angvel)
-        push = torch.from_numpy(push_quantities(desc, vel, angvel))
-        want = head(torch.from_numpy(feature).float(), torch.from_numpy(desc).float(), push.float())
-        assert prob == pytest.approx(want.detach().double().numpy(), abs=1e-5)
+    prob, _ = head.assess(feature, desc, vel, angvel)
+    push = torch.from_numpy(push_quantities(desc, vel, angvel))
+    want = head(torch.from_numpy(feature).float(), torch.from_numpy(desc).float(), push.float())
+    assert prob == pytest.approx(want.detach().double().numpy(), abs=1e-5)
+    for width in (22, DESCRIPTOR_DIM + 1):
+        with pytest.raises(ValueError, match=f"needs \\(B, {DESCRIPTOR_DIM}\\) support descriptors"):
+            head.assess(feature, np.zeros((3, width)), vel, angvel)
 
 
 def test_whole_push_probability_is_the_heads_with_the_step_network_timing():
@@ -391,7 +400,7 @@ def test_fit_topple_writes_a_checkpoint_that_the_predictor_applies(calm):
     src, out = calm
     model, ckpt = load_model(out)
     assert model.topple is not None and len(model.topple.members) == 2
-    assert model.topple.inputs == 6 and ckpt["config"]["model"]["topple_inputs"] == 6  # the current version
+    assert "topple_inputs" not in ckpt["config"]["model"]
     assert ckpt["config"]["topple_fit"]["feature_dropout"] == 0.5
     assert ckpt["config"]["topple_fit"]["validation"]["n"] > 0
     assert torch.all(model.topple.std > 0)  # the input standardisation was set from the data
@@ -432,13 +441,13 @@ def test_the_predictor_rests_a_view_on_the_table_of_its_frame(fitted):
     """A camera 60 deg above a ball on the table sees down to a quarter of its height: the topple head's centre
     of mass height counts from the table (z = 0 of the table frame), not from the lowest point seen. The same
     view 0.5 m above the table (a cloud given in another frame) counts from its lowest point."""
-    from physdyn_ros.learn.support import descriptor_points
+    from physdyn_ros.learn.support import DESCRIPTOR_POINTS
     from physdyn_ros.predictor import Predictor
 
     pred = Predictor.load(fitted[1])
     ball = _surface(trimesh.creation.icosphere(subdivisions=4, radius=0.05), 6000) + [0.3, 0.1, 0.05]
     view = _view(ball, 30.0, 60.0)
-    low = float(view[pred._subset(len(view), descriptor_points(6)), 2].min())  # of the points the head reads
+    low = float(view[pred._subset(len(view), DESCRIPTOR_POINTS), 2].min())  # of the points the head reads
     assert 0.015 < low < 0.045  # the lowest point seen is cm above the table
     on_table, lifted = pred.encode(view), pred.encode(view + [0.0, 0.0, 0.5])
     h = pred._dynamics_dim  # descriptor 0: the centre of mass's height over the support
@@ -712,17 +721,16 @@ def test_dense_descriptors_come_from_the_same_cloud_in_the_same_frame():
 
 
 def test_a_dense_head_reads_the_same_descriptors_in_the_predictor_as_in_training(fitted):
-    """The current inputs version (6) reads 1024 points (evaluation reads what training reads:
-    test_evaluation_applies_the_head_as_the_predictor_does, on the same head)."""
+    """The head's descriptors come from DESCRIPTOR_POINTS points of the cloud (evaluation reads what training
+    reads: test_evaluation_applies_the_head_as_the_predictor_does, on the same head)."""
     from physdyn_ros.learn.checkpoint import load_model
-    from physdyn_ros.learn.support import descriptor_points
+    from physdyn_ros.learn.support import DESCRIPTOR_POINTS
     from physdyn_ros.learn.topple_fit import topple_inputs
     from physdyn_ros.learn.windows import load_sims
     from physdyn_ros.predictor import Predictor
 
     model, ckpt = load_model(fitted[1])
-    assert model.topple.inputs == 6 and ckpt["config"]["topple_fit"]["inputs"] == 6
-    assert descriptor_points(6) == 1024 and descriptor_points(4) == 0
+    assert DESCRIPTOR_POINTS == 1024 > model.cfg.num_points
     sims = load_sims(tiny_dataset(), ["test"])
     index = np.arange(min(20, len(sims)))
     data = topple_inputs(model, sims, index, 0.0)

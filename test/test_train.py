@@ -156,8 +156,8 @@ def test_cli_refuses_to_overwrite_and_checks_resume(tmp_path, capsys):
 
 
 def test_resume_accepts_a_checkpoint_written_before_a_model_key_existed(tmp_path, capsys):
-    """Review finding: a run saved before model.topple_inputs existed (its stored model section lacks the key)
-    failed to resume ("its model config differs"), with and without --config."""
+    """A run saved before a model key existed (its stored model section lacks the key) resumes, with and without
+    --config: the key takes its default ("its model config differs" before)."""
     cfg = tiny_config(data={"max_train_sims": 8}, train={"epochs": 1, "batch_size": 8, "val_rollout_horizon": 0})
     conf = _write_config(tmp_path / "tiny.yaml", cfg)
     data, out = str(tiny_dataset()), tmp_path / "run"
@@ -165,7 +165,7 @@ def test_resume_accepts_a_checkpoint_written_before_a_model_key_existed(tmp_path
     assert first.returncode == 0, first.stderr[-2000:]
     last = out / "checkpoint_last.pt"
     ckpt = torch.load(last, weights_only=True)
-    del ckpt["config"]["model"]["topple_inputs"]  # as an older version wrote it
+    del ckpt["config"]["model"]["com_head"]  # as a version before the centre-of-mass head wrote it
     torch.save(ckpt, last)
     for extra in ([], ["--config", str(conf)]):
         more = _cli(capsys, "train", *extra, "--data", data, "--out", str(out), "--resume", "--max-epochs",

@@ -34,7 +34,7 @@ from .. import geometry as geo
 from . import frames
 from .model import DynamicsModel
 from .rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
-from .support import descriptor_points, sequence_descriptors
+from .support import DESCRIPTOR_POINTS, sequence_descriptors
 from .windows import SimArrays, sequences
 
 CM = 100.0
@@ -84,7 +84,7 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
     wanted = horizon
     if model.topple is not None:  # as the Predictor: the head's timing over the full run, then the prefix
         horizon = max(horizon, HEAD_TIMING_STEPS)
-    dense = descriptor_points(model.topple.inputs) if model.topple is not None else 0
+    dense = DESCRIPTOR_POINTS if model.topple is not None else 0
     for sl in _batches(len(index), batch_size):
         idx = index[sl]
         seq = sequences(sims, wanted, model.cfg.num_points, idx, partial, noise, view_seed=sl.start,
@@ -107,7 +107,7 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
         flat_unless_toppling(d_rot[:, k:], angvel[:, k:], prob)
         if model.topple is not None:  # the whole-push topple head, as the Predictor applies it
             com = model.com_estimate(feature).double().cpu().numpy()
-            desc = sequence_descriptors(seq, com, model.topple.inputs)
+            desc = sequence_descriptors(seq, com)
             head, _ = model.topple.assess(feature.cpu().numpy(), desc,
                                             seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy())
             p0, q0 = sims.pos[idx, 0], sims.quat[idx, 0]

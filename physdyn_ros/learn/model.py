@@ -26,7 +26,6 @@ from torch import Tensor, nn
 from ..conventions import GRAVITY
 from .prior import MIN_RADIUS, prior_constants, prior_into, prior_raw
 from .sections import known_keys
-from .support import INPUTS_VERSIONS
 from .topple import ToppleHead
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
@@ -86,9 +85,6 @@ class ModelConfig:
     topple_head: bool = False
     topple_hidden: int = 64
     topple_members: int = 5
-    # inputs version of the topple head (learn/support.py): 1 for heads fitted before the tilt barriers (their
-    # checkpoints have no such key); physdyn fit-topple fits support.INPUTS_VERSION (or its --inputs)
-    topple_inputs: int = 1
     max_horizon: int = 150  # longest roll-out the Predictor accepts (10 s at 15 Hz)
 
     def __post_init__(self) -> None:
@@ -108,8 +104,6 @@ class ModelConfig:
             raise ValueError(f"model.prior {self.prior} needs model.geometry: true (the lever arm of spin friction)")
         if not 0.0 < float(self.prior_friction) <= 2.0:
             raise ValueError(f"model.prior_friction must be in (0, 2], got {self.prior_friction}")
-        if int(self.topple_inputs) not in INPUTS_VERSIONS:
-            raise ValueError(f"model.topple_inputs must be one of {INPUTS_VERSIONS}, got {self.topple_inputs}")
         for key in ("num_points", "hidden_size", "num_layers", "mlp_layers", "max_horizon", "topple_hidden",
                     "topple_members"):
             if int(getattr(self, key)) < 1:
@@ -382,7 +376,7 @@ class DynamicsModel(nn.Module):
             self.mlp = nn.Sequential(*layers, nn.Linear(dims[-1], OUT_DIM))
         self.skip = nn.Linear(6, OUT_DIM, bias=False) if cfg.input_skip else None
         self.com = nn.Linear(self.feature_dim, 3) if cfg.com_head else None
-        self.topple = (ToppleHead(self.feature_dim, cfg.topple_hidden, cfg.topple_members, cfg.topple_inputs)
+        self.topple = (ToppleHead(self.feature_dim, cfg.topple_hidden, cfg.topple_members)
                        if cfg.topple_head else None)
         self.register_buffer("scales", torch.ones(len(STAT_KEYS)))
         self._reset_parameters()

@@ -11,17 +11,21 @@ from dataclasses import fields
 from typing import Any, Mapping
 
 #: Removed options: (section, key) -> (the value that left it off, or ANY where the key only sized or paced a
-#: removed part and no value of it changes what this code computes; what it was).
+#: removed part and no value of it changes what this code computes; what it was; None, or a key of the same
+#: section without which any value of it loads: the option mattered only with that one on).
 ANY = object()
-RETIRED: dict[tuple[str, str], tuple[Any, str]] = {
-    ("model", "spin_head"): (False, "the spin head fitted by `physdyn fit-spin`"),
-    ("model", "spin_hidden"): (ANY, "the width of the spin head"),
-    ("model", "prior_lever"): (False, "the prior's learned contact lever"),
-    ("train", "lever_lr_scale"): (ANY, "the learning rate of the prior's learned contact lever"),
-    ("train", "start_fraction"): (0.0, "training windows drawn from the impulse"),
-    ("loss", "w_cum"): (0.0, "the loss on the pose accumulated over a window"),
-    ("loss", "w_spin"): (0.0, "the L1 loss on the spin's change and turn about z"),
-    ("loss", "w_spin_sq"): (0.0, "the squared loss on the spin's change and turn about z"),
+RETIRED: dict[tuple[str, str], tuple[Any, str, str | None]] = {
+    ("model", "spin_head"): (False, "the spin head fitted by `physdyn fit-spin`", None),
+    ("model", "spin_hidden"): (ANY, "the width of the spin head", None),
+    ("model", "prior_lever"): (False, "the prior's learned contact lever", None),
+    # the topple head's inputs: this code computes version 6's (learn/support.py), which the shipped model reads
+    ("model", "topple_inputs"): (6, "another version of the topple head's inputs (refit the head: physdyn "
+                                    "fit-topple)", "topple_head"),
+    ("train", "lever_lr_scale"): (ANY, "the learning rate of the prior's learned contact lever", None),
+    ("train", "start_fraction"): (0.0, "training windows drawn from the impulse", None),
+    ("loss", "w_cum"): (0.0, "the loss on the pose accumulated over a window", None),
+    ("loss", "w_spin"): (0.0, "the L1 loss on the spin's change and turn about z", None),
+    ("loss", "w_spin_sq"): (0.0, "the squared loss on the spin's change and turn about z", None),
 }
 
 
@@ -29,11 +33,11 @@ def drop_retired(data: Mapping[str, Any], section: str) -> dict[str, Any]:
     """`data` without the keys of removed options (RETIRED) at their off values; ValueError naming a removed
     option that `data` switches on."""
     out = dict(data)
-    for (where, key), (off, what) in RETIRED.items():
+    for (where, key), (off, what, only_with) in RETIRED.items():
         if where != section or key not in out:
             continue
         value = out.pop(key)
-        if off is not ANY and value != off:
+        if off is not ANY and value != off and (only_with is None or out.get(only_with)):
             raise ValueError(f"{section}.{key} = {value!r} needs {what}, which this version of physdyn_ros no "
                              f"longer has (the option was removed; only {section}.{key} = {off!r} loads)")
     return out

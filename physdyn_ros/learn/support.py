@@ -1,45 +1,34 @@
 """Support-polygon descriptors of a cloud and the per-push quantities that decide tipping (numpy; the inputs of
 the whole-push topple head, learn/topple.py).
 
-Computed from the cloud the encoder sees, or (version 6) from 1024 of its points (frame C, z up, metres): the
-height of the centre of mass over the lowest point, how far the support polygon (the convex hull of the lowest
-points) reaches from the centre of mass in each direction, the cloud's second moments, and, per direction, the
-potential barrier of tilting the object 45 deg that way on its own surface. Per push: the reach ahead of the push
-(friction at the base tips a sliding object forward over that edge), the potential barrier of tipping over it, the
-kinetic energy, the tilt barrier ahead. The per-object part runs once per object (one 2-D hull); the per-push part
-is vectorised.
+Per object, from DESCRIPTOR_POINTS points of its cloud (frame C, z up, metres) and its centre of mass: the height
+of the centre of mass over the support, the object's height, the area of the support polygon (the convex hull of
+the lowest points) and how far it reaches from the centre of mass in each of SUPPORT_DIRECTIONS directions, the
+cloud's second moments, and per direction the potential barrier of tilting the object to TOPPLE_ANGLE that way on
+its own convex surface. Per push: the reach ahead of the push (friction at the base tips a sliding object forward
+over that edge), the potential barrier of tipping over it, the kinetic energy, the tilt barrier ahead, and the
+push's energy toward each direction against that direction's barrier. The per-object part runs once per object
+(one 2-D hull); the per-push part is vectorised.
 
-Inputs version 2 (TILT) added the tilt barriers: the support polygon of a round base (a lying can, a dumbbell on
-its discs, a ball) is the band of its lowest points, which looks as wide as a flat face, but such an object
-rolls with no barrier at all; the centre of mass rising as the surface rolls on the table tells them apart. The
-columns are appended, so a version-1 head reads the first DESCRIPTOR_DIMS[1] / PUSH_DIMS[1] columns unchanged.
-
-Inputs version 3 (VIEW) computes the same columns from the cloud completed where one depth camera cannot see
-(completed_cloud): the bottom on the table and the far side are missing from a view, so its lowest points (the
-support) and its convex surface (the tilt barriers) described only the near side. Two facts fill them in: the
-object rests on the table (z = table, known in the table frame) with its centre of mass over the support, and
-most objects are mirror-symmetric about the vertical planes through their centre of mass along their principal
-axes (boxes, cans, bottles, mugs, chairs): the mirror images of the seen side through those planes (frame C's
-x axis is the cloud's principal axis) cover the hidden one. Its support band starts at the table.
-
-Inputs version 4 (VIEW, as perception delivers) starts the support band at the lowest point seen where that
-lies within SUPPORT_GAP_M of the table: the perception node removes the points within 5 mm of the table plane,
-so a real cloud's base outline lies a few mm up (version 3's band then held the centre of mass's foot alone); a
-view whose lowest point is higher (a ball seen from above) has not seen its support, and the band from the
-foot holds it (and, for an object over 33 cm tall, whose band is 3 % of its height, the points within that).
-
-Inputs version 5 (ROLL) keeps version 4's descriptors and adds per-push columns: the kinetic energy of the
-push's component toward each of the 16 directions against the tilt barrier that way. An object that rolls
-across one axis (a dumbbell on its weights, a can lying down) rolls with the component of any oblique push
-across that axis while the rest slides along it: the barrier straight ahead (version 2's) is then the steep one
-of tipping over an end and hides the roll. (Version 4's missed held-out topples were mostly slow pushes of
-dumbbells; alone, these columns stayed within refit noise, MODEL_CARD.md.)
-
-Inputs version 6 (DENSE) computes version 5's columns on 1024 points of the cloud (DESCRIPTOR_POINTS) instead of
-the encoder's 128: the tilt barriers and the support polygon are extremes of the points (the highest point
-toward a direction, the hull of the lowest), which a sparse sample misses: a 10 cm cube's corners lie 1.3 cm
-(median) from the nearest of 128 random surface points and 0.4 cm from the nearest of 1024, and its tilt
-barriers come out 6 % low (p90 11 %) from 128 points, under 1 % (p90 1.4 %) from 1024 (bench/topple_inputs.py).
+Why each part:
+  * the tilt barriers: the support polygon of a round base (a lying can, a ball) is the band of its lowest points,
+    which looks as wide as a flat face, but such an object rolls with no barrier; the centre of mass rising as
+    the surface rolls on the table tells them apart;
+  * the completed cloud: one depth camera misses the bottom on the table and the far side, so a view's lowest
+    points and convex surface describe only its near side. Two facts fill them in: the object rests on the
+    table with its centre of mass over the support (the centre of mass's foot on the table lies inside it), and
+    most objects are mirror-symmetric about the vertical planes through their centre of mass along their
+    principal axes (frame C's x axis is the cloud's principal axis): the mirror images of the seen side cover
+    the hidden one. The descriptors are those of the points with their mirror images and that foot, read off the
+    points without building the larger cloud;
+  * the support band starts at the lowest point seen where that lies within SUPPORT_GAP_M of the table (the
+    perception node removes the points just above the table plane), else the support is unseen and the foot
+    alone stands for it;
+  * the directional energies: an object that rolls across one axis (a dumbbell on its weights) rolls with the
+    component of an oblique push across that axis while the rest slides along it, which the barrier straight
+    ahead (the steep one of tipping over an end) hides;
+  * the dense cloud: the tilt barriers and the support polygon are extremes of the points (the highest point
+    toward a direction, the hull of the lowest), which a sparse sample such as the encoder's misses.
 """
 from __future__ import annotations
 
@@ -56,31 +45,15 @@ from ..conventions import GRAVITY, TOPPLE_ANGLE
 SUPPORT_DIRECTIONS = 16
 #: Tilt angles (rad, 0 to the topple angle) at which the centre of mass height is measured for the tilt barrier.
 TILT_ANGLES = np.linspace(0.0, TOPPLE_ANGLE, 10)  # conventions: rad
-#: Inputs versions of the topple head: 1 (session 8), 2 (+ tilt barriers), 3 (2 on the completed cloud, the
-#: support band from the table), 4 (3 with the band from the lowest point seen near the table), 5 (4 with the
-#: directional energy columns of push_quantities), 6 (5 on DESCRIPTOR_POINTS points); the current one.
-INPUTS_VERSIONS = (1, 2, 3, 4, 5, 6)
-INPUTS_VERSION = 6
-#: Per-object descriptors, by inputs version: centre-of-mass height over the lowest point, height, area of the
-#: support polygon, the polygon's reach in each direction, the cloud's second moments about the centre of mass
-#: (x, y, z); version 2: the tilt barrier toward each direction (tilt_barriers); versions 3-6: version 2's on
-#: the completed cloud, heights from the table (the support band: completed_cloud); version 6 on more points.
-DESCRIPTOR_DIMS = {1: 3 + SUPPORT_DIRECTIONS + 3, **{v: 3 + 2 * SUPPORT_DIRECTIONS + 3 for v in (2, 3, 4, 5, 6)}}
-#: Per-push quantities derived from the descriptors and the initial twist (push_quantities), by inputs version.
-PUSH_DIMS = {1: 6 + 12, **{v: 6 + 12 + 4 for v in (2, 3, 4)}, **{v: 6 + 12 + 4 + 4 for v in (5, 6)}}
-#: Points of the cloud the descriptors are computed on, by inputs version (a fixed subset of the cloud, points
-#: repeated where it has fewer); versions not listed use the encoder's cloud (model.num_points points).
-DESCRIPTOR_POINTS = {6: 1024}
-
-
-def descriptor_points(inputs: int) -> int:
-    """How many points of a cloud a head of inputs version `inputs` computes its descriptors on (0: the
-    encoder's cloud)."""
-    return DESCRIPTOR_POINTS.get(int(inputs), 0)
-
-
-DESCRIPTOR_DIM = DESCRIPTOR_DIMS[INPUTS_VERSION]
-PUSH_DIM = PUSH_DIMS[INPUTS_VERSION]
+#: Per-object descriptors: centre-of-mass height over the support, height, area of the support polygon, the
+#: polygon's reach in each direction, the cloud's second moments about the centre of mass (x, y, z), the tilt
+#: barrier toward each direction.
+DESCRIPTOR_DIM = 3 + 2 * SUPPORT_DIRECTIONS + 3
+#: Per-push quantities derived from the descriptors and the initial twist (push_quantities).
+PUSH_DIM = 6 + 12 + 4 + 4
+#: Points of the cloud the descriptors are computed on (a fixed subset of the cloud, points repeated where it has
+#: fewer), more than the encoder's: see the module docstring.
+DESCRIPTOR_POINTS = 1024
 #: The lowest points within this band (the larger of an absolute and a relative tolerance) form the support.
 BASE_BAND_M = 0.003
 BASE_BAND_REL = 0.03
@@ -90,8 +63,8 @@ _INFLATE = 0.001  # m: a support seen as a line or a point becomes a thin polygo
 #: stands in for it. A camera 70 deg above a ball (the steepest view in training) sees down to 0.33 of its height.
 TABLE_GAP_REL = 0.5
 TABLE_ABOVE_M = 0.005
-#: Version 4: the support band starts at the lowest point when that lies within this of the table (the perception
-#: node's plane_distance of 5 mm, sensor noise, a sampled round bottom), else the support is unseen.
+#: The support band starts at the lowest point when that lies within this of the table (the perception node's
+#: plane_distance of 5 mm, sensor noise, a sampled round bottom), else the support is unseen.
 SUPPORT_GAP_M = 0.01
 
 
@@ -142,14 +115,6 @@ def _barriers(height: np.ndarray) -> np.ndarray:
     return GRAVITY * (height.max(axis=1) - height[:, 0])
 
 
-def tilt_barriers(points: np.ndarray, com: np.ndarray) -> np.ndarray:
-    """(K,) J/kg: the rise of the centre of mass `com` (3,) when the object of surface points `points` (N, 3)
-    (frame C, z up) tilts up to TOPPLE_ANGLE toward each support direction resting on its own convex surface:
-    g times the largest height over the table along the way, less the height at rest. About the reach-and-height
-    barrier for a box, zero for an object that rolls (a round base), whatever its band of lowest points."""
-    return _barriers(_tilt_heights(points, com))
-
-
 def resting_table(z: np.ndarray, table: float | None) -> float:
     """The height of the plane an object with point heights `z` rests on: `table` where it lies just below the
     lowest point (a view's lowest point may be cm above the table), else the lowest point."""
@@ -178,26 +143,19 @@ def _foot(com: np.ndarray, z: np.ndarray, table: float | None) -> np.ndarray:
     return np.array([com[0], com[1], resting_table(z, table)])
 
 
-def completed_cloud(points: np.ndarray, com: np.ndarray, table: float | None = None) -> np.ndarray:
-    """(4N + 1, 3) the points (N, 3) (frame C, z up) with what a single view misses of the support: their mirror
-    images through the vertical planes x = com_x and y = com_y and through both (the point reflection about the
-    vertical axis of the centre of mass `com` (3,)), and the centre of mass's foot on the table (height
-    `table`, resting_table), which lies inside the support polygon of an object at rest. support_descriptors
-    of inputs version 3 are version 2's of this cloud (computed without building it); version 4's too, except
-    that the support band starts at the lowest point of `points` where that lies within SUPPORT_GAP_M of the
-    table."""
-    pts = np.asarray(points, dtype=np.float64)
-    c = np.asarray(com, dtype=np.float64)
-    return np.concatenate([_mirror_images(pts, c), _foot(c, pts[:, 2], table)[None]])
+def support_descriptors(cloud: np.ndarray, com: np.ndarray, table: np.ndarray | None = None) -> np.ndarray:
+    """Descriptors of clouds in frame C (z up, metres).
 
+    Args:
+        cloud: (B, N, 3) points of each object (DESCRIPTOR_POINTS of its cloud).
+        com: (B, 3) centres of mass in the same frame.
+        table: (B,) the height of the table plane in the same frame (None: each cloud's lowest point).
 
-def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS_VERSION,
-                        table: np.ndarray | None = None) -> np.ndarray:
-    """(B, DESCRIPTOR_DIMS[inputs]) descriptors of clouds (B, N, 3) in frame C (z up, metres) with centres of
-    mass com (B, 3) in the same frame, for a topple head of inputs version `inputs`. table (B,): the height of
-    the table plane in the same frame (versions 3 and 4; None: each cloud's lowest point)."""
-    if inputs not in INPUTS_VERSIONS:
-        raise ValueError(f"inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
+    Returns:
+        (B, DESCRIPTOR_DIM) float64: the descriptors of each cloud completed with its mirror images through the
+        vertical planes x = com_x, y = com_y and both, and its centre of mass's foot on the table
+        (resting_table), computed from the points themselves (see the module docstring).
+    """
     cloud = np.asarray(cloud, dtype=np.float64)
     com = np.asarray(com, dtype=np.float64).reshape(-1, 3)
     if cloud.ndim != 3 or cloud.shape[0] != com.shape[0] or cloud.shape[2] != 3:
@@ -207,47 +165,37 @@ def support_descriptors(cloud: np.ndarray, com: np.ndarray, inputs: int = INPUTS
         raise ValueError(f"table must hold one height per cloud ({len(cloud)}), got {len(tables)}")
     dirs = _directions()
     moments = 3 + SUPPORT_DIRECTIONS
-    out = np.empty((len(cloud), DESCRIPTOR_DIMS[inputs]))
+    out = np.empty((len(cloud), DESCRIPTOR_DIM))
     for i, (pts, c) in enumerate(zip(cloud, com)):
         z = pts[:, 2]
-        z0 = lowest = float(z.min())
-        top = float(z.max())
+        lowest = float(z.min())
         foot = _foot(c, z, tables[i])
-        if inputs == 3:  # version 3 (as first fitted): the band from the table, the foot where within it
-            # (versions >= 4 share version 4's descriptors)
-            z0 = lowest = min(z0, float(foot[2]))
-        elif inputs >= 4:  # the completed cloud (completed_cloud): its images share the points' heights
-            z0, top = min(z0, float(foot[2])), max(top, float(foot[2]))
-            if lowest - foot[2] > SUPPORT_GAP_M:  # the support was not seen: the foot alone
-                lowest = float(foot[2])
+        # the mirror images share the points' heights; the foot adds its own
+        z0, top = min(lowest, float(foot[2])), max(float(z.max()), float(foot[2]))
+        if lowest - foot[2] > SUPPORT_GAP_M:  # the support was not seen: the foot alone
+            lowest = float(foot[2])
         height = top - z0
         band = lowest + max(BASE_BAND_M, BASE_BAND_REL * height)
-        base = pts[z < band]
-        if inputs >= 3:  # the foot lies inside the support of an object at rest
-            base = np.concatenate([_mirror_images(base, c), foot[None]])
-            if inputs == 3:
-                base = base[base[:, 2] < band]
+        # the foot lies inside the support of an object at rest
+        base = np.concatenate([_mirror_images(pts[z < band], c), foot[None]])
         reach, area = _support_reach(base[:, :2], c[:2], dirs)
         out[i, 0], out[i, 1], out[i, 2] = c[2] - z0, height, area
         out[i, 3:3 + SUPPORT_DIRECTIONS] = reach
+        # the mirror images have the points' second moments, the foot its own
         second = np.mean((pts - c) ** 2, axis=0)
-        if inputs >= 3:  # the mirror images have the points' second moments, the foot its own
-            second = (4 * len(pts) * second + (foot - c) ** 2) / (4 * len(pts) + 1)
-        out[i, moments:moments + 3] = second
-        if inputs >= 3:
-            # an image's height tilted toward direction k is the points' toward the mirrored direction
-            tilt = _tilt_heights(pts, c)[_MIRRORED].max(axis=0)
-            out[i, moments + 3:] = _barriers(np.maximum(tilt, (c[2] - foot[2]) * np.cos(TILT_ANGLES)))
-        elif inputs >= 2:
-            out[i, moments + 3:] = tilt_barriers(pts, c)
+        out[i, moments:moments + 3] = (4 * len(pts) * second + (foot - c) ** 2) / (4 * len(pts) + 1)
+        # an image's height tilted toward direction k is the points' toward the mirrored direction
+        tilt = _tilt_heights(pts, c)[_MIRRORED].max(axis=0)
+        out[i, moments + 3:] = _barriers(np.maximum(tilt, (c[2] - foot[2]) * np.cos(TILT_ANGLES)))
     return out
 
 
-def sequence_descriptors(seq: Mapping[str, Any], com: np.ndarray, inputs: int) -> np.ndarray:
-    """support_descriptors of windows.make_windows' output (tensors or arrays): on its desc_cloud where it has
-    one (made with desc_points = descriptor_points(inputs)), else on the encoder's cloud."""
+def sequence_descriptors(seq: Mapping[str, Any], com: np.ndarray) -> np.ndarray:
+    """support_descriptors (B, DESCRIPTOR_DIM) of windows.make_windows' output (tensors or arrays): on its
+    desc_cloud where it has one (made with desc_points = DESCRIPTOR_POINTS), else on the encoder's cloud; com
+    (B, 3) in frame C."""
     cloud = seq["desc_cloud"] if "desc_cloud" in seq else seq["cloud"]
-    return support_descriptors(np.asarray(cloud), com, inputs, np.asarray(seq["table"]))
+    return support_descriptors(np.asarray(cloud), com, np.asarray(seq["table"]))
 
 
 def _reach_at(reach: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -265,20 +213,24 @@ _QUARTERS = np.array([0.0, math.pi, 0.5 * math.pi, -0.5 * math.pi])  # ahead, be
 
 
 def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np.ndarray:
-    """(B, PUSH_DIM) per push: the initial twist in C (6) and what decides tipping: speed, tipping and yaw
-    rates, vertical speed, the support's reach ahead of / behind / beside the push and its minimum, the
-    potential barrier of tipping over the front edge (per unit mass), the kinetic energy (per unit mass), their
-    ratio, the friction lever h / reach ahead, and the rate at which sliding tips the object about that edge;
-    version 2: the tilt barrier ahead of the push and its minimum over directions (J/kg), and the log ratio of
-    the kinetic energy to each; version 5: toward the direction k of the 16 where the push's kinetic energy
-    toward k, 0.5 max(v . d_k, 0)^2, is largest against the tilt barrier that way: their log ratio, that barrier,
-    that energy, and the cosine between k and the push. desc: (B, DESCRIPTOR_DIMS[v]) of support_descriptors for
-    inputs version v; the result has PUSH_DIMS[v] columns for v = 1 and PUSH_DIMS[5] for the others (a head reads
-    the leading columns of its own version)."""
+    """What decides tipping, per push.
+
+    Args:
+        desc: (B, DESCRIPTOR_DIM) support_descriptors of the pushed objects.
+        vel, angvel: (B, 3) the initial twist in frame C (m/s, rad/s).
+
+    Returns:
+        (B, PUSH_DIM) float64: the twist (6); speed, tipping and yaw rates, the support's reach ahead of /
+        behind / beside the push and its minimum, the potential barrier of tipping over the front edge and the
+        kinetic energy (both per unit mass), their log ratio, the friction lever h / reach ahead, the rate at
+        which sliding tips the object about that edge (12); the tilt barrier ahead of the push and its minimum
+        over directions (J/kg) and the log ratio of the kinetic energy to each (4); toward the direction k where
+        the push's kinetic energy toward k, 0.5 max(v . d_k, 0)^2, is largest against the tilt barrier that way:
+        their log ratio, that barrier, that energy, and the cosine between k and the push (4).
+    """
     desc = np.asarray(desc, dtype=np.float64)
-    widths = sorted(DESCRIPTOR_DIMS.values())
-    if desc.ndim != 2 or desc.shape[1] not in widths:
-        raise ValueError(f"descriptors must be (B, D) with D one of {widths} (support_descriptors), got {desc.shape}")
+    if desc.ndim != 2 or desc.shape[1] != DESCRIPTOR_DIM:
+        raise ValueError(f"descriptors must be (B, {DESCRIPTOR_DIM}) (support_descriptors), got {desc.shape}")
     vel = np.asarray(vel, dtype=np.float64).reshape(-1, 3)
     angvel = np.asarray(angvel, dtype=np.float64).reshape(-1, 3)
     h = desc[:, 0]
@@ -289,8 +241,7 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     heading = np.arctan2(vel[:, 1], vel[:, 0])
     angles = heading[:, None] + _QUARTERS
     # reach and tilt barrier in one interpolation (a per-call cost at batch 1): rows B.. are the tilt's
-    at = _reach_at(np.concatenate([reach, tilt]), np.concatenate([angles, angles])) if tilt.shape[1] else \
-        _reach_at(reach, angles)
+    at = _reach_at(np.concatenate([reach, tilt]), np.concatenate([angles, angles]))
     ahead, back, left, right = at[:len(reach)].T
     front, side = ahead, np.minimum(left, right)
     lever = np.maximum(front, 0.0)
@@ -301,17 +252,16 @@ def push_quantities(desc: np.ndarray, vel: np.ndarray, angvel: np.ndarray) -> np
     slide_tip = speed * h / (h * h + lever * lever + 1e-6)
     columns = [speed, tip_rate, np.abs(angvel[:, 2]), front, back, side, reach.min(axis=1), barrier, kinetic, ratio,
                h / (lever + 1e-3), slide_tip]
-    if tilt.shape[1]:  # inputs version 2
-        tilt_ahead, tilt_min = at[len(reach):, 0], tilt.min(axis=1)
-        columns += [tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
-                    np.log((kinetic + 1e-6) / (tilt_min + 1e-6))]
-        # version 5: the push's energy toward each direction against that direction's barrier (an oblique push
-        # rolls a round-based object across its axis with the push's component that way)
-        along = np.maximum(vel[:, :2] @ _DIRS.T, 0.0)  # (B, K) m/s toward each direction
-        toward = 0.5 * along ** 2
-        ratios = np.log((toward + 1e-6) / (tilt + 1e-6))
-        best = np.argmax(ratios, axis=1)
-        rows = np.arange(len(best))
-        cosine = along[rows, best] / np.maximum(speed, 1e-9)
-        columns += [ratios[rows, best], tilt[rows, best], toward[rows, best], np.where(speed > 0.0, cosine, 0.0)]
+    tilt_ahead, tilt_min = at[len(reach):, 0], tilt.min(axis=1)
+    columns += [tilt_ahead, tilt_min, np.log((kinetic + 1e-6) / (tilt_ahead + 1e-6)),
+                np.log((kinetic + 1e-6) / (tilt_min + 1e-6))]
+    # the push's energy toward each direction against that direction's barrier (an oblique push rolls a
+    # round-based object across its axis with the push's component that way)
+    along = np.maximum(vel[:, :2] @ _DIRS.T, 0.0)  # (B, K) m/s toward each direction
+    toward = 0.5 * along ** 2
+    ratios = np.log((toward + 1e-6) / (tilt + 1e-6))
+    best = np.argmax(ratios, axis=1)
+    rows = np.arange(len(best))
+    cosine = along[rows, best] / np.maximum(speed, 1e-9)
+    columns += [ratios[rows, best], tilt[rows, best], toward[rows, best], np.where(speed > 0.0, cosine, 0.0)]
     return np.concatenate([vel, angvel, np.stack(columns, axis=1)], axis=1)

@@ -1,12 +1,12 @@
 """Whole-push topple head: will this push topple the object at some point of its motion?
 
-Why a separate head (issue 11): the LSTM's per-step topple logit is trained on 15-frame windows and decides from
-the recurrent state, which generalised poorly to unseen shape families (held-out F1 0.61, half its alarms false).
-Whether a push topples is mostly rigid-body statics and energy: the height of the centre of mass over the support
-polygon, how far that polygon reaches in the direction of the push (friction at the base tips the object forward
-while it slides), and the kinetic energy against the potential barrier of tipping over that edge. This head sees
-those quantities, computed from the cloud the encoder sees (version 6: 1024 of its points), next to the learned
-shape feature and the initial twist, and predicts one calibrated probability per push. The per-step probabilities
+Why a separate head: the LSTM's per-step topple logit is trained on 15-frame windows and decides from the
+recurrent state, which generalises poorly to unseen shape families. Whether a push topples is mostly rigid-body
+statics and energy: the height of the centre of mass over the support polygon, how far that polygon reaches in the
+direction of the push (friction at the base tips the object forward while it slides), and the kinetic energy
+against the potential barrier of tipping over that edge. This head sees those quantities, computed from the
+object's cloud (learn/support.py), next to the learned shape feature and the initial twist, and predicts one
+calibrated probability per push. The per-step probabilities
 of a roll-out keep the LSTM's timing, scaled so that their maximum is this probability (rules.whole_push_topple).
 
 The descriptors are numpy (learn/support.py), the head a small ensemble of MLPs (averaging out the fit's
@@ -23,9 +23,9 @@ import torch
 from scipy.special import expit
 from torch import Tensor, nn
 
-from .support import DESCRIPTOR_DIMS, INPUTS_VERSIONS, PUSH_DIMS, push_quantities
+from .support import DESCRIPTOR_DIM, PUSH_DIM, push_quantities
 
-#: Novelty 1 is the training inputs' distance at this quantile (issue 11: flag inputs far from the training data).
+#: Novelty 1 is the training inputs' distance at this quantile (flags inputs far from the training data).
 NOVELTY_QUANTILE = 0.995
 RANGE_MARGIN = 1.05
 
@@ -55,15 +55,10 @@ class ToppleHead(nn.Module):
     range_radius: Tensor
     calibration: Tensor
 
-    def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5, inputs: int = 1) -> None:
+    def __init__(self, feature_dim: int, hidden: int = 64, members: int = 5) -> None:
         super().__init__()
-        if inputs not in INPUTS_VERSIONS:
-            raise ValueError(f"topple head inputs version must be one of {INPUTS_VERSIONS}, got {inputs}")
         self.feature_dim = int(feature_dim)
-        self.inputs = int(inputs)
-        # the descriptors and push quantities of support.py hold every version's columns, newest last: a head of
-        # an older version reads its leading columns
-        self.desc_dim, self.push_dim = DESCRIPTOR_DIMS[self.inputs], PUSH_DIMS[self.inputs]
+        self.desc_dim, self.push_dim = DESCRIPTOR_DIM, PUSH_DIM
         self.in_dim = self.feature_dim + self.desc_dim + self.push_dim
         self.members = nn.ModuleList([
             nn.Sequential(nn.Linear(self.in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
@@ -80,14 +75,15 @@ class ToppleHead(nn.Module):
         self.register_buffer("range_radius", torch.full((self.in_dim,), float("inf")))
         # (scale, shift) on the logit of the members' mean probability, fitted on families the members were not
         # trained on (topple_fit.cross_validate): the ensemble is calibrated for the shapes of its training
-        # families and under-confident on new ones (issue 11); identity for heads fitted without it
+        # families and under-confident on new ones; identity for heads fitted without it
         self.register_buffer("calibration", torch.tensor([1.0, 0.0]))
         self._np: Optional[dict[str, np.ndarray]] = None
         self._np_tensors: Optional[list[Tensor]] = None
         self._np_key: Optional[tuple] = None
 
     def raw_inputs(self, feature: Tensor, desc: Tensor, push: Tensor) -> Tensor:
-        return torch.cat([feature, _squash(desc[:, :self.desc_dim]), _squash(push[:, :self.push_dim])], dim=-1)
+        """(B, in_dim) unstandardised inputs of feature (B, F), desc (B, DESCRIPTOR_DIM), push (B, PUSH_DIM)."""
+        return torch.cat([feature, _squash(desc), _squash(push)], dim=-1)
 
     def member_logits(self, x: Tensor) -> Tensor:
         """(members, B) logits of raw inputs x (B, in_dim), standardised here."""
@@ -141,8 +137,8 @@ class ToppleHead(nn.Module):
 
     def _numpy(self) -> dict[str, np.ndarray]:
         """The weights as stacked numpy arrays, rebuilt when a parameter or buffer changes (inference runs in
-        numpy: at batch 1 torch's per-call overhead cost 1.4-2.4 ms per roll-out, bench/bench_predictor.py)."""
-        if self._np_tensors is None:  # walking the module tree on every call cost 0.3 ms
+        numpy: at batch 1 torch's per-call overhead costs more than the arithmetic, bench/bench_predictor.py)."""
+        if self._np_tensors is None:  # the tensors listed once: walking the module tree costs on every call
             self._np_tensors = list(self.parameters()) + list(self.buffers())
         key = tuple((t.data_ptr(), t._version) for t in self._np_tensors)
         if self._np is None or self._np_key != key:
@@ -169,11 +165,10 @@ class ToppleHead(nn.Module):
         """(probability (B,), novelty (B,)) of feature (B, F), desc (B, D), vel / angvel (B, 3) in frame C: the
         forward pass and novelty above, in numpy (float64)."""
         w = self._numpy()
-        if np.ndim(desc) != 2 or np.shape(desc)[1] < self.desc_dim:
-            raise ValueError(f"this topple head (inputs version {self.inputs}) needs (B, {self.desc_dim}) support "
-                             f"descriptors, got {np.shape(desc)}")
+        if np.ndim(desc) != 2 or np.shape(desc)[1] != self.desc_dim:
+            raise ValueError(f"the topple head needs (B, {self.desc_dim}) support descriptors, got {np.shape(desc)}")
         push = push_quantities(desc, vel, angvel)
-        squashed = np.concatenate([np.asarray(desc)[:, :self.desc_dim], push[:, :self.push_dim]], axis=1)
+        squashed = np.concatenate([np.asarray(desc), push], axis=1)
         squashed = np.sign(squashed) * np.log1p(10.0 * np.abs(squashed))
         x = np.concatenate([np.asarray(feature, dtype=np.float64), squashed], axis=1)
         z = (x - w["mean"]) / w["std"]

@@ -17,7 +17,7 @@ import torch
 
 from .evaluate import _fmt, calibration, topple_scores
 from .model import DynamicsModel
-from .support import INPUTS_VERSION, INPUTS_VERSIONS, descriptor_points, push_quantities, sequence_descriptors
+from .support import DESCRIPTOR_POINTS, push_quantities, sequence_descriptors
 from .topple import ToppleHead, apply_calibration
 from .windows import SimArrays, sequences
 
@@ -30,11 +30,10 @@ def topple_inputs(model: DynamicsModel, sims: SimArrays, index: np.ndarray, part
     parts: dict[str, list[np.ndarray]] = {"feature": [], "desc": [], "push": [], "label": [], "category": []}
     for start in range(0, len(index), batch_size):
         idx = index[start:start + batch_size]
-        inputs = model.topple.inputs if model.topple is not None else INPUTS_VERSION
         seq = sequences(sims, 1, model.cfg.num_points, idx, partial, noise, view_seed=view_seed + start,
-                        desc_points=descriptor_points(inputs))
+                        desc_points=DESCRIPTOR_POINTS)
         feature = model.encode(seq["cloud"])
-        desc = sequence_descriptors(seq, model.com_estimate(feature).numpy(), inputs)
+        desc = sequence_descriptors(seq, model.com_estimate(feature).numpy())
         parts["feature"].append(feature.numpy())
         parts["desc"].append(desc)
         parts["push"].append(push_quantities(desc, seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy()))
@@ -275,8 +274,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--feature-dropout", type=float, default=0.5,
                         help="chance that a training push's learned shape feature is hidden from the head, which "
                              "then decides from the physical descriptors alone (default 0.5; 0: never)")
-    parser.add_argument("--inputs", type=int, default=INPUTS_VERSION, choices=INPUTS_VERSIONS,
-                        help=f"the head's inputs version (learn/support.py; default {INPUTS_VERSION}, the current)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
 
@@ -297,13 +294,11 @@ def run(args: argparse.Namespace) -> int:
             or not 0.0 <= args.feature_dropout < 1.0:
         raise ValueError("--max-train must be >= 100, --epochs and --members >= 1, --partial in [0, 1], "
                          "--feature-dropout in [0, 1)")
-    inputs = int(getattr(args, "inputs", INPUTS_VERSION))
-    if inputs not in INPUTS_VERSIONS:
-        raise ValueError(f"--inputs must be one of {INPUTS_VERSIONS}, got {inputs}")
     ckpt = load_checkpoint(args.checkpoint)
     config = copy.deepcopy(ckpt["config"])
-    config["model"] = dict(config["model"], topple_head=True, topple_members=int(args.members),
-                           topple_inputs=inputs)
+    # a stored topple_inputs (a removed option: sections.RETIRED) names the inputs of the head being replaced
+    config["model"] = {**{k: v for k, v in config["model"].items() if k != "topple_inputs"}, "topple_head": True,
+                       "topple_members": int(args.members)}
     model = DynamicsModel(ModelConfig.from_dict(config["model"]))
     state = {k: v for k, v in ckpt["model"].items() if not k.startswith("topple.")}  # refit an existing head
     missing = [k for k in model.load_state_dict(state, strict=False).missing_keys if not k.startswith("topple.")]
@@ -322,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
     config["topple_fit"] = {"source": ckpt["model_id"], "data": resolved[0] if len(resolved) == 1 else resolved,
                             "max_train": args.max_train, "partial": args.partial, "epochs": args.epochs,
                             "members": args.members, "seed": args.seed, "family_folds": folds,
-                            "feature_dropout": args.feature_dropout, "inputs": inputs,
+                            "feature_dropout": args.feature_dropout,
                             "validation": _compact(result)}
     model_id = save_checkpoint(args.out, model=model.eval(), config=config, dataset=ckpt.get("dataset", {}),
                                progress=ckpt.get("progress"), include_rng=False)

@@ -110,8 +110,8 @@ def resolve_config(raw: dict[str, Any]) -> dict[str, Any]:
 
 
 def _resolved_sections(config: dict[str, Any]) -> dict[str, Any]:
-    """A checkpoint's stored config with the defaults of keys added since it was written (a model section
-    without topple_inputs equals one with its default): comparable with a resolved config."""
+    """A checkpoint's stored config with the defaults of keys added since it was written and without the
+    removed ones (sections.RETIRED): comparable with a resolved config."""
     return resolve_config({k: config.get(k) for k in ("model", "loss", "train", "data")})
 
 
@@ -361,7 +361,7 @@ def _same_weights(a: dict[str, Any], b: dict[str, Any]) -> bool:
 
     a, b = asdict(ModelConfig.from_dict(dict(a))), asdict(ModelConfig.from_dict(dict(b)))
     # the head is fitted afterwards on frozen features
-    drop = {"topple_head", "topple_hidden", "topple_members", "topple_inputs"}
+    drop = {"topple_head", "topple_hidden", "topple_members"}
     if {a["prior"], b["prior"]} <= {"sliding", "coupled"}:
         drop |= {"prior", "prior_friction"}
     return {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
