@@ -29,7 +29,7 @@ def test_learning_core_imports_without_ros_and_pybullet():
     assert "ok []" in run.stdout
 
 
-#: The ROS-free core: top-level packages / modules of physdyn_ros (issue 15.10). The rest (ros, nodes and the
+#: The ROS-free core: top-level packages / modules of physdyn_ros. The rest (ros, nodes and the
 #: application modules cli, launcher, demo, info) may import anything below them.
 CORE_PARTS = ("shapes", "sim", "data", "learn", "predictor", "planning", "bag", "perception", "geometry",
               "conventions", "resources")
@@ -94,8 +94,8 @@ LAYER_RULES = [
 
 
 def test_layers_hold_for_every_import_including_lazy_ones():
-    """Issue 15.10: an AST scan of every module, function-level (lazy) imports included; the dependency goes
-    nodes -> ros -> core, never back (bag/record.py and bag/replay.py imported the recorder node)."""
+    """An AST scan of every module, function-level (lazy) imports included; the dependency goes nodes -> ros ->
+    core, never back (a lazy import of a node from the core would pull rclpy into the ROS-free core)."""
     modules = list((ROOT / "physdyn_ros").rglob("*.py"))
     assert len(modules) > 50 and all(any(_in(p)(_module_name(m)) for m in modules) for p in CORE_PARTS)
     assert not _violations(LAYER_RULES), "\n".join(_violations(LAYER_RULES))
@@ -134,6 +134,107 @@ def test_layer_scan_sees_lazy_and_relative_imports(tmp_path, monkeypatch):
     assert any("x.py:3 imports rclpy" in f for f in found), found
 
 
+def _import_graph() -> dict[str, dict[str, int]]:
+    """Module -> {physdyn_ros module it imports: first line}, every import counted (lazy and TYPE_CHECKING ones
+    too). An imported name resolves to the module it names: `from .planner import X` -> planner, `from . import
+    geometry` -> geometry (not the package, whose __init__ merely runs first, as for any submodule)."""
+    paths = sorted((ROOT / "physdyn_ros").rglob("*.py"))
+    modules = {_module_name(p) for p in paths}
+
+    def owner(name: str) -> str | None:  # the longest prefix of `name` that is a module of physdyn_ros
+        parts = name.split(".")
+        return next((m for m in (".".join(parts[:n]) for n in range(len(parts), 0, -1)) if m in modules), None)
+
+    graph: dict[str, dict[str, int]] = {}
+    for path in paths:
+        src = _module_name(path)
+        by_line: dict[int, list[str]] = {}
+        for imported, line in _imports(path):
+            by_line.setdefault(line, []).append(imported)
+        edges = graph.setdefault(src, {})
+        for line, names in sorted(by_line.items()):
+            for name in names:
+                # `from pkg import a, b` lists pkg, pkg.a, pkg.b: pkg counts only if a name is not a submodule
+                subs = [n for n in names if n.startswith(name + ".")]
+                if subs and all(n in modules for n in subs):
+                    continue
+                target = owner(name)
+                if target is not None and target != src:
+                    edges.setdefault(target, line)
+    return graph
+
+
+def _circles(graph: dict[str, dict[str, int]]) -> list[str]:
+    """Every strongly connected group of modules (Tarjan), each shown as one cycle through it with its lines."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph.get(v, {}):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10000))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    out = []
+    for group in groups:
+        members = set(group)
+        path = [group[0]]  # walk inside the group back to its first module: one concrete cycle
+        while True:
+            nxt = sorted(w for w in graph[path[-1]] if w in members)
+            back = [w for w in nxt if w == group[0]]
+            step = back[0] if back and len(path) > 1 else next((w for w in nxt if w not in path), nxt[0])
+            path.append(step)
+            if step == group[0] or step in path[:-1]:
+                break
+        hops = " -> ".join(f"{a} (line {graph[a][b]})" for a, b in zip(path, path[1:])) + f" -> {path[-1]}"
+        out.append(f"{len(group)} modules {group}: {hops}")
+    return out
+
+
+def test_no_import_circles_among_the_modules():
+    """No module of physdyn_ros reaches itself through imports, lazy (function-level) ones included: a lazy
+    import only hides a circle until the code path that runs it, and a circle means neither module can be read,
+    tested or moved on its own."""
+    circles = _circles(_import_graph())
+    assert not circles, "import circles:\n" + "\n".join(circles)
+
+
+def test_circle_scan_sees_lazy_and_relative_imports(tmp_path, monkeypatch):
+    """The scan itself: a lazy relative import that closes a loop is a circle; a package __init__ importing its
+    submodules, and a submodule importing a sibling through `from . import x`, are not."""
+    pkg = tmp_path / "physdyn_ros" / "p"
+    pkg.mkdir(parents=True)
+    (tmp_path / "physdyn_ros" / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("from .a import f\nfrom .b import g\n")
+    (pkg / "a.py").write_text("from . import c\n\ndef f():\n    from .b import g\n")
+    (pkg / "b.py").write_text("from .c import h\n")
+    (pkg / "c.py").write_text("def h():\n    from physdyn_ros.p.a import f\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    circles = _circles(_import_graph())
+    assert len(circles) == 1 and "['physdyn_ros.p.a', 'physdyn_ros.p.b', 'physdyn_ros.p.c']" in circles[0], circles
+    (pkg / "c.py").write_text("def h():\n    pass\n")
+    assert not _circles(_import_graph())
+
+
 def test_cli_lists_commands_and_rejects_unknown_ones():
     exe = ROOT / ".venv" / "bin" / "physdyn"
     ok = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=60)
@@ -155,7 +256,8 @@ def test_info_reports_interfaces():
 
 
 def test_package_xml_lists_every_ros_package_the_code_imports():
-    """Issue 15.6: package.xml missed rosgraph_msgs, rcl_interfaces, diagnostic_msgs, launch_ros, ..."""
+    """Every ROS package the code imports is declared in package.xml (rosdep and colcon read it, not the
+    code)."""
     import ast
     import xml.etree.ElementTree as ET
 
@@ -178,7 +280,7 @@ def test_package_xml_lists_every_ros_package_the_code_imports():
 
 
 def test_requirements_pin_what_the_code_imports():
-    """Issue 15.8: ruamel.yaml was imported but not pinned, psutil pinned but never imported."""
+    """requirements.txt pins every third-party import, and nothing that is never imported."""
     import ast
     import importlib.metadata as md
     import re
@@ -212,7 +314,7 @@ def test_requirements_pin_what_the_code_imports():
 
 
 def test_ruff_is_clean():
-    """Issue 15.11: pyflakes and pycodestyle (ruff.toml) over the package, benches and tests."""
+    """pyflakes and pycodestyle (ruff.toml) over the package, benches and tests."""
     ruff = Path(sys.executable).parent / "ruff"
     run = subprocess.run([str(ruff), "check", "--output-format", "concise", "."], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
@@ -220,7 +322,7 @@ def test_ruff_is_clean():
 
 
 def test_mypy_is_clean_on_the_core():
-    """Issue 15.11: mypy (pinned; mypy.ini) over the ROS-free core, every core folder of the layering rules."""
+    """mypy (pinned; mypy.ini) over the ROS-free core, every core folder of the layering rules."""
     import configparser
 
     cfg = configparser.ConfigParser()
