@@ -251,8 +251,9 @@ def _surface_mm(shape, verts, points) -> np.ndarray:
 
 @pytest.mark.parametrize("category,seed", [("mug", 9000), ("ring", 9000), ("legged", 9001), ("dumbbell", 9002)])
 def test_contact_points_lie_on_the_surface_of_concave_objects(category, seed):
-    """Issue 16: the convex hull's section put contacts 1.1-1.7 cm outside concave objects (a pusher there touches
-    nothing); every contact must be within 2 mm of the object's surface, also through holes and between legs."""
+    """Contacts come from the observed points, not the convex hull (whose section lies outside a concave object,
+    where a pusher touches nothing): every contact is within 2 mm of the object's surface, also through holes and
+    between legs."""
     from physdyn_ros.planning import body_from_cloud
 
     shape, cloud, verts = _posed_shape(category, seed)
@@ -393,8 +394,8 @@ def test_adapted_aim_stays_on_the_table_and_within_reach():
 
 def test_analytic_seeds_reach_a_turning_goal_in_one_iteration(planner):
     """The first CEM iteration starts around the Coulomb-sliding solution (speed sqrt(2 mu g d), the offset that
-    spins the object to the goal's yaw), so one small iteration suffices under the sliding model; around the
-    straight push alone the planner needed 2 s where it has 0.2 (bench_planning trials, session 8)."""
+    spins the object to the goal's yaw), so one small iteration suffices under the sliding model (around the
+    straight push alone a planning budget is not enough)."""
     goal = Goal(Pose2D(0.2, 0.05, 0.5), position_tolerance=0.02, yaw_tolerance=math.radians(10))
     cfg = replace(FAST, samples=16, max_iterations=1, robust_candidates=0, time_budget=30.0)
     plan = planner.plan(box_cloud(), Pose2D(0, 0, 0), goal, config=cfg)
@@ -403,9 +404,9 @@ def test_analytic_seeds_reach_a_turning_goal_in_one_iteration(planner):
 
 
 def test_when_the_best_pushes_are_unsafe_under_noise_a_calmer_push_is_checked():
-    """Review of session 8: a longer search converged on pushes at the edge of the topple limit, all of them
-    unsafe once perturbed, and refused although the search had seen safe pushes. Now the calm pushes of the whole
-    search (topple risk under half the limit) are checked too."""
+    """A search that converges on pushes at the edge of the topple limit, all of them unsafe once perturbed, must
+    not refuse when it has seen safe pushes: the calm pushes of the whole search (topple risk under half the
+    limit) are checked too."""
     class SteepRisk(AnalyticSlidingModel):  # the sliding model with a topple risk of 0.3 at 0.9-1 m/s, 1 above
         def rollout_batch(self, *args, **kwargs):
             out = super().rollout_batch(*args, **kwargs)

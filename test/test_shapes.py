@@ -253,8 +253,8 @@ def test_family_is_deterministic_per_seed(family):
 
 
 def test_paper_categories_unchanged():
-    """The six categories draw exactly what they drew before the families came (digests of their parameters,
-    names, convex flags, volumes, no parts)."""
+    """The six paper categories draw fixed shapes for fixed seeds (digests of their parameters, names, convex
+    flags, volumes, no parts): datasets generated from them stay reproducible."""
     import hashlib
     import json
 

@@ -135,8 +135,8 @@ class PushBody:
         s / (mu g) seconds: the braking pseudo-force mu g at COM height h tips it about that edge when mu h > b
         (b: the edge's distance ahead of the COM), an angular impulse (mu h - b) s / (mu k^2). A push below the
         COM tilts it back, but the table stops the back edge (the angular momentum about the back edge,
-        m s z_contact, points forward): counting that backward tilt as a topple refused 29 of 42 bench trials
-        that pushes low and slow solve. Very low, fast pushes that flip small objects are bounded by the
+        m s z_contact, points forward): counting that backward tilt as a topple would refuse the low, slow pushes
+        that move tall objects without tipping them. Very low, fast pushes that flip small objects are bounded by the
         planner's max_spin instead. Barrier: g (sqrt(b^2 + h^2) - h) per unit mass; k^2 = a.(I/m).a + b^2 + h^2
         about the edge (axis a)."""
         v = np.asarray(lin_vel, dtype=np.float64)

@@ -9,7 +9,7 @@ orientations) -> TrajectoryBatch`. Three implementations exist:
   physdyn_ros.learn.baselines, behind the same API. A physics stand-in with no training, used where no
   trained model exists (tests) and as a sanity reference;
 * physdyn_ros.planning.sim_model.PybulletModel: re-simulation of the cloud's convex hull in pybullet (the
-  "engine with estimated parameters" comparison of bench/bench_plan.py).
+  "engine with estimated parameters" comparison of bench/bench_planning.py).
 """
 from __future__ import annotations
 

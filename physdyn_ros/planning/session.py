@@ -14,13 +14,11 @@ Adaptation between pushes (`adapt`): the learned model's slide distance can be o
 (friction, mass distribution it cannot see). After each push the ratio of the observed to the predicted
 displacement is measured (pushes that moved at least MIN_ADAPT_DISTANCE); the next push aims at the goal
 brought nearer (or farther) by their geometric mean, clipped to GAIN_RANGE, so a model that under-predicts the
-slide by 30 % is asked for 1/1.3 of the distance. (The same correction of the turn, the mean observed minus
-predicted yaw change taken off the yaw asked of the model, made things worse: 33 % against 55 % within three
-pushes on bench/bench_planning.py --iterations 3: the model's yaw errors differ from push to push. A ratio
-instead, the next push asking for the remaining turn divided by the observed / predicted turn of the pushes
-before, measured 45 % against 60 % in session 8, although first pushes turned 1-5x what the model predicted.)
-This is the closed loop's "observe and adapt" step; the observed states of a push can also be fed to the model while it
-moves (planning.adapt, `steps_in`).
+slide by 30 % is asked for 1/1.3 of the distance. The turn is not corrected the same way (neither by the mean
+observed minus predicted yaw change nor by its ratio): the model's yaw errors differ from push to push, so last
+push's error says little about the next one's, and both corrections lowered the closed loop's success on
+bench/bench_planning.py. This is the closed loop's "observe and adapt" step; the observed states of a push can
+also be fed to the model while it moves (planning.adapt, `steps_in`).
 """
 from __future__ import annotations
 

@@ -162,7 +162,9 @@ class Shape:
         """(2, 3) min and max corner of the unscaled shape in the object frame."""
         return np.stack([self.vertices.min(0), self.vertices.max(0)])
 
-    def mass_properties(self, scale=(1.0, 1.0, 1.0), density: float = DEFAULT_DENSITY) -> MassProperties:
+    def mass_properties(self, scale: np.ndarray | tuple[float, float, float] = (1.0, 1.0, 1.0),
+                        density: float = DEFAULT_DENSITY) -> MassProperties:
+        """Mass properties of the shape scaled per axis by `scale`, at `density` kg/m^3."""
         return mass_properties(self.vertices, self.faces, density, scale)
 
     def hull(self) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,10 @@
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .core import convex_hull, mass_properties
 
@@ -23,7 +26,7 @@ _AREA = 1e-12  # m^2: polygons smaller than this are numerical slivers
 
 
 # ------------------------------------------------------------------------------------------------ primitives
-def box_points(lo, hi) -> np.ndarray:
+def box_points(lo: ArrayLike, hi: ArrayLike) -> np.ndarray:
     """The 8 corners of the axis-aligned box [lo, hi]."""
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -47,7 +50,8 @@ def frustum_points(section0: np.ndarray, z0: float, section1: np.ndarray, z1: fl
     return np.vstack([np.column_stack([s0, np.full(len(s0), z0)]), np.column_stack([s1, np.full(len(s1), z1)])])
 
 
-def ellipsoid_points(radii, n_lat: int = 10, n_lon: int = 20, exponents=(1.0, 1.0)) -> np.ndarray:
+def ellipsoid_points(radii: Sequence[float] | np.ndarray, n_lat: int = 10, n_lon: int = 20,
+                     exponents: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
     """Points on a superellipsoid centred at 0 with semi-axes `radii` and exponents (e1 vertical, e2
     horizontal); (1, 1) is an ellipsoid, small exponents a rounded box, 2 an octahedron. Poles included."""
     a, b, c = (float(r) for r in radii)
