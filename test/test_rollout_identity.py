@@ -146,7 +146,7 @@ def _predictor_outputs(out: dict[str, np.ndarray], clouds: np.ndarray, shapes: d
 def compute() -> dict[str, np.ndarray]:
     """All the fixture's arrays, computed by the current code (one CPU thread: BLAS's blocking depends on it)."""
     from physdyn_ros.learn.frames import canonicalize_cloud
-    from physdyn_ros.learn.model import KERNEL_ROWS
+    from physdyn_ros.learn.kernels import KERNEL_ROWS
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -1,10 +1,10 @@
-"""The inference roll-out kernels (issue 13) compute the same function as before.
+"""The roll-out kernels (learn/kernels.py) compute one function.
 
-learn/model.py runs a roll-out without autograd in _fused_lstm_rollout (TorchScript, one product per layer, sigmoid
-only) or, at batch 1 on the CPU, _numpy_lstm_rollout; with autograd it still runs _lstm_rollout. The references
-here are the computations as they were before the change: `old_rollout_raw` below (the previous rollout_raw, which
-called _lstm_rollout for every roll-out), the teacher-forced nn.LSTM on the roll-out's own inputs, and the previous
-Predictor._run (`old_predictor_run`, torch roll-out + learn.frames.integrate_in_world).
+DynamicsModel.rollout_raw runs a roll-out without autograd in fused_lstm_rollout (TorchScript, one product per layer,
+sigmoid only) or, at batch 1 on the CPU, numpy_lstm_rollout; with autograd it runs lstm_rollout. The references
+here are the straightforward computations: `old_rollout_raw` below (rollout_raw with lstm_rollout for every
+roll-out), the teacher-forced nn.LSTM on the roll-out's own inputs, and `old_predictor_run` (the Predictor's
+roll-out in torch + learn.frames.integrate_in_world).
 
 Tolerance: float32 rounding. Reordering the sums of a 60-step closed-loop roll-out moves outputs by up to ~1e-5 of
 their largest magnitude (the previous kernel itself differs by that much between a batch and its rows one at a
@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from physdyn_ros import geometry as geo
-from physdyn_ros.learn import model as model_module
+from physdyn_ros.learn import kernels
 from physdyn_ros.learn.model import STAT_KEYS, DynamicsModel, ModelConfig
 
 FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
@@ -28,8 +28,8 @@ REL = 2e-5
 
 
 def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=None, obs_angvel=None):
-    """rollout_raw of the LSTM as it was before issue 13: _lstm_rollout for every roll-out (with the sliding prior
-    of issue 11 when the model has one)."""
+    """rollout_raw of the LSTM with lstm_rollout for every roll-out (with the sliding prior when the model has
+    one)."""
     with torch.no_grad():
         fast = m._build_fast()
         x0 = m._inputs(vel0, angvel0, fast)
@@ -38,14 +38,14 @@ def old_rollout_raw(m: DynamicsModel, feature, vel0, angvel0, steps, obs_vel=Non
         const0 = torch.addmm(fast["bias"][0], feature, w_x[0][6:])
         # the differentiable kernel, with the sliding prior of models that have one (the shipped model does)
         prior = torch.stack(m._prior_decel(feature), -1) if m.cfg.prior != "none" else x0.new_zeros(0, 3)
-        return model_module._lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
+        return kernels.lstm_rollout(x0, x_obs, const0, [w_x[0][:6]] + w_x[1:], fast["w_h"], fast["bias"],
                                           fast["w_out"], fast["b_out"], fast["w_skip"], fast["gain"], int(steps),
                                           prior, fast["in"], fast["out"])
 
 
 def previous_numpy_rollout(x0, x_obs, w0, w, w_head, steps, prior=None):
-    """_numpy_lstm_rollout before issue 13's re-measurement (8 numpy calls per layer and step, out= keywords): the
-    reference for the current batch-1 kernel, which must give the same numbers bit for bit."""
+    """numpy_lstm_rollout written plainly (8 numpy calls per layer and step, out= keywords): the reference for the
+    batch-1 kernel, which must give the same numbers bit for bit."""
     from physdyn_ros.learn.prior import prior_into
 
     layers = len(w) + 1
@@ -133,8 +133,8 @@ def pushes(shipped):
 
 
 def test_kernels_are_compiled():
-    assert isinstance(model_module._lstm_rollout, torch.jit.ScriptFunction)
-    assert isinstance(model_module._fused_lstm_rollout, torch.jit.ScriptFunction)
+    assert isinstance(kernels.lstm_rollout, torch.jit.ScriptFunction)
+    assert isinstance(kernels.fused_lstm_rollout, torch.jit.ScriptFunction)
 
 
 @pytest.mark.parametrize("batch", [1, 3, 300])  # 1: the numpy kernel; 300: two blocks of KERNEL_ROWS
@@ -203,7 +203,7 @@ def test_kernel_weights_follow_parameter_updates():
 
 # ------------------------------------------------------------------------------------------ the Predictor
 def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
-    """Predictor._run before issue 13 (without observed states): model.rollout in torch, then frames."""
+    """Predictor._run written plainly (without observed states): model.rollout in torch, then frames."""
     from physdyn_ros.learn.frames import c_to_world, integrate_in_world, world_to_c
     from physdyn_ros.learn.rules import consistent_topple, flat_unless_toppling, settle
 
@@ -222,7 +222,7 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
     ang = np.concatenate([w0[:, None], c_to_world(flat[..., 9:12], h)], axis=1)
     d_pos, d_rot = flat[..., 0:3].copy(), flat[..., 3:6].copy()
     prob = np.concatenate([np.zeros((len(feats), 1)), 1.0 / (1.0 + np.exp(-flat[..., 12]))], axis=1)
-    d_rot_w, ang_c = c_to_world(d_rot, h), ang  # the rules (issue 11) are not part of the speed-up: applied to both
+    d_rot_w, ang_c = c_to_world(d_rot, h), ang  # the rules are not part of the kernels: applied to both
     flat_unless_toppling(d_rot_w, ang_c, prob)
     topple = getattr(pred._model, "topple", None)
     if topple is not None:  # a whole-push topple head (not part of the speed-up either): applied as the Predictor does
@@ -271,8 +271,8 @@ def test_compose_rotations_equals_integrate_in_world(batch):
 
 @pytest.mark.parametrize("observed", [False, True])
 def test_batch1_numpy_kernel_equals_its_previous_version_bit_for_bit(shipped, pushes, observed):
-    """The batch-1 kernel's rewrite (issue 13: 7 numpy calls per layer, the sliding prior's constants in numpy) is a
-    speed-up only: the same float32 numbers as the kernel before it, for every push of the fixture."""
+    """The batch-1 kernel (7 numpy calls per layer, the sliding prior's constants in numpy) gives the same float32
+    numbers as the plain version, for every push of the fixture."""
     from physdyn_ros.learn.prior import prior_constants
 
     m = shipped._model
@@ -290,7 +290,7 @@ def test_batch1_numpy_kernel_equals_its_previous_version_bit_for_bit(shipped, pu
         args = prior_constants(prior[i, 0], prior[i, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"],
                                coupling=float(prior[i, 2]))  # the shipped model's coupled prior
         ref = previous_numpy_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
-        got = model_module._numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
+        got = kernels.numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], 60, args)
         assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1]), i
         # the Predictor's entry point: the prior's constants now computed in numpy, the same numbers
         arr_raw, arr_xs, _ = m.rollout_arrays(feature[i:i + 1].numpy(), v[i:i + 1].numpy(), w[i:i + 1].numpy(), 60,

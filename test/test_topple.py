@@ -212,8 +212,8 @@ def test_descriptors_are_those_of_the_completed_cloud():
 def test_a_cloud_without_its_bottom_slice_keeps_its_support():
     """The perception node removes the points within 5 mm of the table plane: the base outline of a real cloud
     lies a few mm up, and the support is read there (within SUPPORT_GAP_M of the table; a band from the table
-    would hold the foot alone). A view that has not seen its support at all (a ball from 60 deg above: its lowest point 2.5 cm up) rests on the foot of
-    its centre of mass alone."""
+    would hold the foot alone). A view that has not seen its support at all (a ball from 60 deg above: its lowest
+    point 2.5 cm up) rests on the foot of its centre of mass alone."""
     box = trimesh.creation.box(extents=(0.1, 0.06, 0.1))
     pts = np.concatenate([_surface(box, 6000), np.asarray(box.vertices)])
     com, table = np.zeros((1, 3)), np.array([-0.05])
