@@ -12,8 +12,7 @@ offset whose spin turns the object to the goal's yaw under sliding; each seed an
 around the straight-line guess, gentle and low pushes included; later ones sample a Gaussian fitted to the elites.
 Iterations stop when the time budget would be exceeded by the next one (cost per rolled-out step is measured on the
 fly). The learned model rolls out only the search horizon (`head_timing=False`: its topple probability over those
-steps is the whole push's), not the 60 steps a timed prediction needs: several times the candidates per
-budget.
+steps is the whole push's), not the 60 steps a timed prediction needs: several times the candidates per budget.
 
 Robustness: the best `robust_candidates` distinct elites are rolled out again under `robust_samples` small
 perturbations each (speed, direction, offset, height: what a robot's execution and the perception get wrong).
@@ -91,6 +90,8 @@ class StepCost:
 
 @dataclass
 class Candidate:
+    """One rolled-out push of the search: its parameters, where it touches, what the model predicts, its cost."""
+
     cost: float
     direction: np.ndarray  # (2,)
     speed: float
@@ -235,6 +236,8 @@ class Search:
         return cands
 
     def costs(self, batch: TrajectoryBatch, tip: Optional[np.ndarray] = None) -> tuple[np.ndarray, ...]:
+        """(cost, position error, yaw error, topple probability, off the table) per roll-out of `batch` (the cost
+        of the module docstring; `tip`: PushBody.tip_ratios, counted as topple risk too)."""
         g, cfg = self.goal, self.cfg
         final = batch.positions[:, -1, :2]
         pos_err = np.linalg.norm(final - g.pose.xy, axis=1)
@@ -266,6 +269,7 @@ class Search:
 
     # -- CEM -----------------------------------------------------------------------------------------------
     def run(self) -> Candidate:
+        """The CEM iterations within the budget, then the robustness check: the winning candidate."""
         cfg = self.cfg
         lo = np.array([-cfg.max_speed, -cfg.max_speed, -cfg.max_offset_fraction, 0.0])
         hi = np.array([cfg.max_speed, cfg.max_speed, cfg.max_offset_fraction, 1.0])
