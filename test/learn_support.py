@@ -45,7 +45,7 @@ TINY_CONFIG: dict[str, Any] = {
 
 def tiny_config(**sections: dict[str, Any]) -> dict[str, Any]:
     """TINY_CONFIG with per-section updates, resolved like `physdyn train` does."""
-    from physdyn_ros.learn.train import resolve_config
+    from physdyn_ros.learn.config import resolve_config
 
     raw = copy.deepcopy(TINY_CONFIG)
     for name, values in sections.items():

@@ -45,7 +45,7 @@ def test_paper_configuration_size():
     import yaml
 
     from conftest import ROOT
-    from physdyn_ros.learn.train import resolve_config
+    from physdyn_ros.learn.config import resolve_config
 
     cfg = resolve_config(yaml.safe_load((ROOT / "config" / "model_paper.yaml").read_text()))["model"]
     m = DynamicsModel(ModelConfig.from_dict(cfg))
@@ -216,7 +216,7 @@ def test_removed_options_load_at_their_off_values_and_are_refused_when_on(tmp_pa
 
     from physdyn_ros.learn.checkpoint import CheckpointError, load_model
     from physdyn_ros.learn.sections import ANY, RETIRED
-    from physdyn_ros.learn.train import resolve_config
+    from physdyn_ros.learn.config import resolve_config
 
     path = random_checkpoint(tmp_path / "new.pt")
     ckpt = torch.load(path, weights_only=True)

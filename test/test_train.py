@@ -241,7 +241,7 @@ def test_fine_tune_starts_from_the_init_checkpoint(overfit_run, tmp_path):
 def test_set_reads_numbers_as_numbers():
     """--set train.lr=1e-4 reached torch's Adam as the string '1e-4' (YAML 1.1 wants a dot in a float) and
     failed there with a TypeError."""
-    from physdyn_ros.learn.train import apply_overrides
+    from physdyn_ros.learn.config import apply_overrides
 
     raw: dict = {}
     apply_overrides(raw, ["train.lr=1e-4", "train.epochs=3", "model.cell=lstm", "data.categories=[box, mug]"])
