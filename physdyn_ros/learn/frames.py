@@ -97,3 +97,61 @@ def integrate_in_world(heading: float | np.ndarray, position0: np.ndarray, orien
                                   geo.quat_to_matrix(geo.quat_normalize(orientation0)))
     orientations = geo.matrix_to_quat(rot)
     return positions, orientations
+
+
+def _exp_map(rv: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation vectors (..., 3): scipy's Rotation.from_rotvec(rv).as_quat(), in numpy
+    for compose_rotations' hot path (see there)."""
+    rv = np.asarray(rv, dtype=np.float64)
+    a = np.sqrt(np.sum(rv * rv, axis=-1, keepdims=True))
+    # sin(a/2)/a with its Taylor series near 0 (no division by zero for the identity)
+    k = np.where(a > 1e-6, np.sin(0.5 * a) / np.where(a > 1e-6, a, 1.0), 0.5 - a * a / 48.0)
+    return np.concatenate([rv * k, np.cos(0.5 * a)], axis=-1)
+
+
+# Left-multiplication matrix of a quaternion a = (x, y, z, w): L(a) @ b = a * b (Hamilton), L(a) L(b) = L(a * b).
+_L_INDEX = np.array([3, 2, 1, 0, 2, 3, 0, 1, 1, 0, 3, 2, 0, 1, 2, 3])
+_L_SIGN = np.array([1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1, 1, -1, -1, -1, 1], dtype=np.float64)
+#: compose_rotations multiplies 4x4 matrices up to this many quaternions (fewest numpy calls), then components
+#: (numpy's stacked small-matrix products each cost a fixed overhead, which many of them add up to)
+_SCAN_MATRICES_UP_TO = 1024
+
+
+def compose_rotations(q0: np.ndarray, d_rot: np.ndarray) -> np.ndarray:
+    """Orientations after world-fixed rotation increments: q_0 = q0, q_{t+1} = Exp(d_rot[:, t]) q_t.
+
+    The rotations of integrate_in_world (which composes rotation matrices, then converts them) in a fraction of
+    the time: a parallel prefix product (log2(H + 1) batched products) of the quaternions, for few of them as
+    their left-multiplication matrices (the last column of L(q_t) is q_t), else component-wise. Plain numpy on
+    purpose, not scipy.spatial.transform (used elsewhere): this is the Predictor's batch-1 hot path, scipy has no
+    prefix product, and Rotation.from_rotvec is slower than _exp_map. test_geometry_scipy checks both against
+    scipy.
+
+    Args:
+        q0: (B, 4) start orientations (x, y, z, w; normalised here).
+        d_rot: (B, H, 3) rotation vectors in world axes.
+
+    Returns:
+        (B, H + 1, 4) unit quaternions with w >= 0.
+    """
+    q0 = np.asarray(q0, dtype=np.float64)
+    q = np.concatenate([(q0 / np.sqrt(np.sum(q0 * q0, axis=-1, keepdims=True)))[:, None], _exp_map(d_rot)], axis=1)
+    n, k = q.shape[1], 1
+    if q.shape[0] * n <= _SCAN_MATRICES_UP_TO:
+        acc = (q[..., _L_INDEX] * _L_SIGN).reshape(q.shape[:2] + (4, 4))
+        while k < n:  # later factors on the left keep the time order: acc[i] <- acc[i] @ acc[i - k]
+            acc[:, k:] = np.einsum("bnij,bnjk->bnik", acc[:, k:], acc[:, :-k])
+            k *= 2
+        out = acc[..., 3]
+    else:
+        x, y, z, w = (np.ascontiguousarray(q[..., i]) for i in range(4))
+        while k < n:  # q[i] <- q[i] * q[i - k] (Hamilton product, geometry.quat_multiply's formula)
+            ax, ay, az, aw = x[:, k:], y[:, k:], z[:, k:], w[:, k:]
+            bx, by, bz, bw = x[:, :-k], y[:, :-k], z[:, :-k], w[:, :-k]
+            x[:, k:], y[:, k:], z[:, k:], w[:, k:] = (aw * bx + ax * bw + ay * bz - az * by,
+                                                      aw * by - ax * bz + ay * bw + az * bx,
+                                                      aw * bz + ax * by - ay * bx + az * bw,
+                                                      aw * bw - ax * bx - ay * by - az * bz)
+            k *= 2
+        out = np.stack([x, y, z, w], -1)
+    return out * (np.where(out[..., 3:] < 0, -1.0, 1.0) / np.sqrt(np.sum(out * out, axis=-1, keepdims=True)))
