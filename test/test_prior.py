@@ -37,11 +37,10 @@ def test_stepping_the_prior_is_the_closed_form_baseline():
 
 
 def test_the_coupled_prior_shares_friction_between_sliding_and_spinning():
-    """model.prior coupled (session 8): the ellipsoidal limit surface. Pure sliding and pure spinning decelerate
+    """model.prior coupled: the ellipsoidal limit surface. Pure sliding and pure spinning decelerate
     as in the sliding prior; an object sliding at v while spinning at w shares the friction: the speed decreases
-    by mu g v / |(v, r w)| per second, the spin by (mu g / r) r |w| / |(v, r w)| (the learned model, on the
-    decoupled prior, stopped the spin of a sliding object within a step: 3.2 -> 0.3 rad/s where pybullet kept
-    2.9). The numpy kernel's step (prior_into) is the same arithmetic."""
+    by mu g v / |(v, r w)| per second, the spin by (mu g / r) r |w| / |(v, r w)| (the decoupled prior stops the
+    spin of a fast-sliding object within a step). The numpy kernel's step (prior_into) is the same arithmetic."""
     from physdyn_ros.learn.prior import prior_constants, prior_into
 
     mu_g, r = 0.5 * GRAVITY, 0.05
@@ -184,8 +183,8 @@ def test_predictor_starts_at_the_estimated_centre_of_mass(tmp_path):
 
 
 def test_a_predicted_object_comes_to_rest_exactly(tmp_path):
-    """Issue 11: velocities never reached zero (0.25 m/s at step 60 while the poses had stopped). After the rest
-    rule the velocities are exactly zero from the first quiet state on, and the pose no longer moves."""
+    """A network's velocities need not reach zero when its poses have stopped. After the rest rule the velocities
+    are exactly zero from the first quiet state on, and the pose no longer moves."""
     from physdyn_ros.learn.checkpoint import save_checkpoint
     from physdyn_ros.predictor import Predictor, settle
 
@@ -214,8 +213,8 @@ def test_a_predicted_object_comes_to_rest_exactly(tmp_path):
 
 
 def test_topple_probability_agrees_with_the_predicted_poses():
-    """Issue 11.3: the probability disagreed with the model's own poses. Now it never decreases, and it is 1 once
-    the predicted pose has tilted past 45 degrees."""
+    """The probability agrees with the model's own poses: it never decreases, and it is 1 once the predicted pose
+    has tilted past 45 degrees."""
     from scipy.spatial.transform import Rotation
 
     from physdyn_ros.predictor import consistent_topple
@@ -229,7 +228,7 @@ def test_topple_probability_agrees_with_the_predicted_poses():
 
 
 def test_degenerate_and_out_of_range_clouds_are_refused(tmp_path):
-    """Issue 11.4: one point repeated or a line of points got a confident trajectory."""
+    """One point repeated or a line of points is no object: refused, not given a confident trajectory."""
     import pytest
 
     from physdyn_ros.predictor import check_cloud
@@ -248,7 +247,7 @@ def test_degenerate_and_out_of_range_clouds_are_refused(tmp_path):
 
 
 def test_no_phantom_tilt_unless_the_model_predicts_a_topple():
-    """Issue 11.3: objects that slide flat ended with a predicted tilt of median 5 deg."""
+    """Objects that slide flat keep no predicted tilt unless the model predicts a topple."""
     from physdyn_ros.learn.rules import flat_unless_toppling
 
     d_rot = np.tile([0.02, -0.01, 0.1], (2, 4, 1))

@@ -197,7 +197,7 @@ def test_evaluate_cli_writes_reports(overfit_run, tmp_path, capsys):
     assert steps.returncode == 0, steps.stderr[-2000:]
     rep4 = json.loads((tmp_path / "e4" / "metrics.json").read_text())
     assert rep4["steps_in"] == 4 and set(rep4["results"]["overall"]) == {"model"}
-    # partial depth-camera views, against the object that stays still (issue 11's tables)
+    # partial depth-camera views, against the object that stays still
     part = _cli(capsys, "evaluate", "--checkpoint", str(overfit_run / "model_best.pt"), "--data", str(tiny_dataset()),
                 "--horizon", "40", "--partial", "1", "--baselines", "still", "--out", str(tmp_path / "ep"))
     assert part.returncode == 0, part.stderr[-2000:]
@@ -253,7 +253,7 @@ def test_set_reads_numbers_as_numbers():
 
 
 def test_a_fine_tune_may_swap_the_physics_prior_and_nothing_else():
-    """The prior has no weights: a fine-tune may move a sliding-prior model to the coupled prior (session 8) or
+    """The prior has no weights: a fine-tune may move a sliding-prior model to the coupled prior or
     another friction; a checkpoint written before newer config keys existed compares with their defaults."""
     from physdyn_ros.learn.train import _same_weights
 

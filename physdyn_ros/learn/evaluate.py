@@ -25,7 +25,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 import numpy as np
 import torch
@@ -65,7 +65,7 @@ def ground_truth(sims: SimArrays, index: np.ndarray, horizon: int) -> Trajectori
                         topple_prob=sims.toppled[sl].astype(np.float64))
 
 
-def _batches(n: int, size: int):
+def _batches(n: int, size: int) -> Iterator[slice]:
     for i in range(0, n, size):
         yield slice(i, min(n, i + size))
 

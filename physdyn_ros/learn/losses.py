@@ -14,8 +14,8 @@ Relative errors weigh a slow object's small increments as much as a fast one's l
 reason). The original had no eps, so a resting object (both vectors exactly 0) gave 0/0 = NaN; with eps the
 loss is 0 there. At a zero target (an object at rest) the "target" form is ||x_hat|| / eps, a firm L1 pull
 towards rest; the symmetric form saturates at ~1 with a vanishing gradient once ||x_hat|| >> eps, so a model
-trained with it learns no pull to rest and its roll-outs keep drifting after the object stopped (measured:
-the median rotation error grew linearly to ~100 deg after 4 s). The shipped configs use "target".
+trained with it learns no pull to rest and its roll-outs keep drifting after the object stopped (their rotation
+error grows steadily with time). The shipped configs use "target".
 The norm's gradient at 0 is defined as 0, so identical prediction and target give a zero, finite gradient.
 """
 from __future__ import annotations

@@ -62,9 +62,8 @@ class ModelConfig:
     forget_bias: float = 1.0  # TF LSTMCell default, used by the original
     # A linear map from the step's normalised [v, w] straight to the outputs, added to the recurrent head (zero at
     # start). d_pos ~ v dt and d_rot ~ w dt are linear in the input, but a head on tanh-bounded LSTM states
-    # learns large increments slowly: without it the first shipped model predicted 12.6 cm of travel for
-    # 1.2-2 m/s pushes that slid 27.4 cm, even with the true velocities fed (bench/speed_bins.py). The paper has
-    # no such path; model_paper.yaml keeps it off.
+    # learns large increments slowly: without it fast pushes travel far short of the data, even with the true
+    # velocities fed. The paper has no such path; model_paper.yaml keeps it off.
     input_skip: bool = False
     # Physically meaningful inputs computed from the cloud (GEOMETRY: lever arm, height, centroid height, reach),
     # appended to the learned shape feature: what decides sliding and toppling, and exact for any shape family.

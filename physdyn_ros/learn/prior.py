@@ -2,8 +2,8 @@
 coupled).
 
 Hybrids of an analytic model and a learned residual beat both pure physics and pure learning on pushing
-(Ajay et al. 2018, 2019), and on shapes outside the training families plain Coulomb sliding was the best
-motion predictor measured (issue 11: 0.31 cm median final position against 1.32 cm for the learned model).
+(Ajay et al. 2018, 2019), and on shapes outside the training families plain Coulomb sliding predicts the
+motion better than a network trained without it (physdyn_ros/models/MODEL_CARD.md).
 The prior is exact constant-deceleration kinematics over one step of dt, in frame C:
   * horizontal velocity: |v_xy| decreases by mu g per second along its own direction, stopping at zero;
   * spin about z: |w_z| decreases by mu g / r per second (r: RMS horizontal radius of the cloud, the
@@ -22,7 +22,9 @@ it), and one that spins drifts on.
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Sequence, Tuple
+
+import numpy as np
 
 import torch
 from torch import Tensor
@@ -89,15 +91,16 @@ def prior_raw(x: Tensor, decel: Tensor, spin_decel: Tensor, coupling: Tensor, sc
     return torch.cat([d_vel, d_angvel, d_pos, d_rot], -1) / scale_out[:12]
 
 
-def prior_constants(decel: float, spin_decel: float, scale_in, scale_out, gain, dt: float = DT,
-                    coupling: float = 0.0) -> tuple:
-    """The numbers prior_into needs, gathered once per roll-out."""
+def prior_constants(decel: float, spin_decel: float, scale_in: Sequence[float], scale_out: Sequence[float],
+                    gain: Sequence[float], dt: float = DT, coupling: float = 0.0) -> tuple:
+    """The numbers prior_into needs, gathered once per roll-out: the decelerations (mu g, spin deceleration), the
+    input (6,) and output (13,) scales and the feedback gain (6,) of the model, dt and the coupling (0 or 1)."""
     si, so, g = [float(v) for v in scale_in], [float(v) for v in scale_out], [float(v) for v in gain]
     return (float(decel), float(spin_decel), si[0], si[1], si[5], 1 / so[0], 1 / so[1], 1 / so[5], 1 / so[6],
             1 / so[7], 1 / so[11], g[0], g[1], g[5], float(dt), float(coupling))
 
 
-def prior_into(row, x, c: tuple) -> None:
+def prior_into(row: np.ndarray, x: np.ndarray, c: tuple) -> None:
     """prior_raw added in place to one step of the batch-1 kernel: row[:12] (the outputs) and row[13:19] (the
     next input, through the feedback gain); only the six non-zero components, as Python floats."""
     decel, spin, s0, s1, s5, o0, o1, o5, o6, o7, o11, g0, g1, g5, dt, coupling = c

@@ -2,8 +2,8 @@
 evaluate`) returns: numpy only.
 
 A network's outputs need not obey what physics makes certain: a stopped object stays stopped on a flat table,
-and a topple is not undone. These rules make the outputs agree with that (issue 11: velocities that never
-reached zero, a topple probability that disagreed with the predicted poses).
+and a topple is not undone. These rules make the outputs agree with that (without them velocities need never
+reach zero, and a topple probability can disagree with the predicted poses).
 """
 from __future__ import annotations
 

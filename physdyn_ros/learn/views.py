@@ -1,7 +1,7 @@
 """Partial clouds as a depth camera sees them, for training and evaluation on realistic inputs.
 
 A robot's depth camera sees one side of an object: the faces turned away and the bottom on the table are
-missing, and the centroid of what is seen lies several cm from the centre of mass (issue 11: median 3.3 cm).
+missing, and the centroid of what is seen lies cm from the centre of mass.
 `visible` is an orthographic z-buffer along the viewing direction (numpy, vectorised over a batch): a point is
 seen when it lies within `tol` of the front-most point of its image cell. Sensor noise is Gaussian.
 """
@@ -26,7 +26,8 @@ def visible(points: np.ndarray, view_dir: np.ndarray, cell_factor: float = 2.0) 
     An orthographic z-buffer whose cells are `cell_factor` point spacings wide (the spacing of N points over the
     bounding box's surface), so a sampled surface leaves no holes for hidden points to show through; a point is
     seen within 0.9 cell of its cell's front-most point (an inclined face changes depth across a cell). Points
-    of hidden faces next to a silhouette edge leak through (~10 % of a hidden face), as edge pixels do on a sensor.
+    of hidden faces next to a silhouette edge leak through (a thin strip of a hidden face), as edge pixels do on a
+    sensor.
     """
     pts = np.asarray(points, dtype=np.float64)
     d = np.asarray(view_dir, dtype=np.float64)
