@@ -331,10 +331,18 @@ class Predictor:
     def rollout(self, shape: Union[ShapeCode, np.ndarray], lin_vel: Any, ang_vel: Any, horizon: int = 60,
                 position: Any = None, orientation: Any = None,
                 observed: Union[Observed, Mapping[str, Any], None] = None) -> Trajectory:
-        """Predict the motion after the object has velocities lin_vel / ang_vel (world frame) at frame 0.
+        """Predict the motion after the object has velocities lin_vel / ang_vel at frame 0.
 
-        shape: a ShapeCode or a cloud (N, 3). position: start COM (default: the cloud centroid).
-        orientation: start orientation (default identity). observed: optional states of frames 1..K.
+        Args:
+            shape: a ShapeCode (encode) or a cloud (N, 3) in the table frame.
+            lin_vel, ang_vel: (3,) m/s and rad/s, world frame.
+            horizon: steps of dt to predict (1..max_horizon).
+            position: (3,) start centre of mass (default: the code's centroid).
+            orientation: (4,) start orientation x, y, z, w (default: identity, the pose the cloud was seen in).
+            observed: optional states of frames 1..K (an Observed, or a mapping of its fields), kept as given.
+
+        Returns:
+            A Trajectory of horizon + 1 states (frame 0 the given start) with topple probabilities and novelty.
         """
         code = self._code(shape)
         horizon = self._check_horizon(horizon)
@@ -352,11 +360,19 @@ class Predictor:
                       orientations: Any = None, head_timing: bool = True) -> TrajectoryBatch:
         """Batched roll-outs: one shape with many velocities, or many shapes (a sequence of codes or clouds).
 
-        lin_vels / ang_vels: (B, 3) or (3,) (broadcast); positions (B, 3) or (3,); orientations (B, 4) or (4,).
-        head_timing (models with a topple head): True times the head's whole-push probability over a 60-step run,
-        so a shorter horizon is that run's prefix (what `rollout` gives); False rolls out only `horizon` steps and
-        reaches the whole-push probability by its last step (a planner wants the outcome of the push, not its
-        timing, and a 16-step search horizon then costs 16 steps, not 60).
+        Args:
+            shapes: a ShapeCode or a cloud (N, 3), or a sequence of B of them (or a (B, N, 3) array of clouds).
+            lin_vels, ang_vels: (B, 3) or (3,) (broadcast), world frame.
+            horizon: steps of dt to predict (1..max_horizon).
+            positions: (B, 3) or (3,) start centres of mass (default: the codes' centroids).
+            orientations: (B, 4) or (4,) start orientations (default: identity).
+            head_timing: for models with a topple head, True times the head's whole-push probability over a
+                HEAD_TIMING_STEPS run, so a shorter horizon is that run's prefix (what `rollout` gives); False rolls
+                out only `horizon` steps and reaches the whole-push probability by its last step (a planner wants
+                the outcome of the push, not its timing, and a short search horizon then costs only its steps).
+
+        Returns:
+            A TrajectoryBatch of B trajectories of horizon + 1 states.
         """
         horizon = self._check_horizon(horizon)
         if isinstance(shapes, ShapeCode) or (isinstance(shapes, np.ndarray) and shapes.ndim == 2):

@@ -255,7 +255,7 @@ class WindowDataset(torch.utils.data.Dataset):
 
     __getitems__ (used by DataLoader for whole batches) and `batch` are vectorised. Training uses `batch`
     with a generator derived from (seed, epoch, batch index, rank), which makes every batch reproducible
-    without state and a resumed run continue exactly (learn/train.py).
+    without state and a resumed run continue exactly (learn/loop.py).
     """
 
     def __init__(self, sims: SimArrays, window: int = 15, num_points: int = 1024, seed: int = 0,
