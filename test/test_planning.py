@@ -389,7 +389,11 @@ def test_adapted_aim_stays_on_the_table_and_within_reach():
     here = Pose2D(0.6, 0.0, 0.0)
     assert s.aim(here).pose.x == pytest.approx(1.2)  # unclipped: past the table's edge
     assert s.aim(here, TableBounds()).pose.x == pytest.approx(1.0)
-    assert s.aim(here, None, reach=0.2).pose.x == pytest.approx(0.8)
+    # the true goal 0.3 m away, beyond one push of reach 0.2: the first of two legs (0.15 m, any yaw)
+    assert s.aim(here, None, reach=0.2).pose.x == pytest.approx(0.75)
+    assert s.aim(here, None, reach=0.2).ignores_yaw
+    # within reach of one push, the adapted aim is capped at the reach
+    assert s.aim(here, None, reach=0.31).pose.x == pytest.approx(0.91)
 
 
 def test_analytic_seeds_reach_a_turning_goal_in_one_iteration(planner):

@@ -19,7 +19,8 @@ from physdyn_ros.msg import ObjectState
 from physdyn_ros.nodes.perception_node import PerceptionNode
 from physdyn_ros.nodes.predictor_node import PredictorNode
 from physdyn_ros.nodes.pusher_node import PusherNode
-from physdyn_ros.nodes.sim_node import STATE_QOS, SimNode
+from physdyn_ros.nodes.sim_node import SimNode
+from physdyn_ros.ros.qos import STATE_QOS
 from physdyn_ros.ros.convert import pose, yaw_quaternion
 from test_nodes_support import Spinner, wait_for
 
@@ -164,3 +165,16 @@ def test_one_goal_at_a_time_and_deactivate_stops_a_goal(suite):
         pusher.trigger_activate()
         pusher.set_parameters([Parameter("external_motion_timeout", value=1.0)])
     assert pusher.is_active
+
+
+def test_a_goal_beyond_one_push_is_reached_in_legs(suite):
+    """A goal farther than one push slides was refused ("push twice") although max_pushes allowed several."""
+    sim, pusher, client, states = suite
+    here = states[-1].pose.position
+    result = client.send(goal_msg(here.x - 0.5, here.y, position_tolerance=0.05, yaw_tolerance=math.pi,
+                                  max_pushes=5), timeout=180.0)
+    assert result.outcome != "refused", result.message
+    pushed = [f for f in client.feedback if f.stage == "pushing"]
+    assert result.pushes >= 2 and len(pushed) >= 2, result.message
+    first = pushed[0].predicted_rest_pose.position
+    assert 0.1 < here.x - first.x < 0.4, (here.x, first.x)  # the first push aims at an intermediate goal

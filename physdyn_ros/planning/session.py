@@ -39,6 +39,11 @@ OUTCOMES = ("reached", "refused", "toppled", "out_of_pushes", "cancelled")
 GAIN_RANGE = (0.5, 2.0)
 #: m: pushes predicted or observed to move less than this say nothing about the slide ratio.
 MIN_ADAPT_DISTANCE = 0.01
+#: A goal farther than one push reaches is split into equal legs of at most this fraction of the reach (the
+#: planner then has speed to spare), each leg's end an intermediate goal ...
+LEG_REACH = 0.8
+#: ... reached within this fraction of the leg's length (or the goal's own tolerance, if larger), any yaw.
+LEG_TOLERANCE = 0.25
 
 
 @dataclass(frozen=True)
@@ -119,8 +124,17 @@ class PushSession:
 
     def aim(self, pose: Pose2D, table: Optional[TableBounds] = None, reach: float = math.inf) -> Goal:
         """The goal to plan the next push for, from `pose`: the true goal, corrected by the slide ratio of the pushes
-        so far when adapting. A corrected aim stays on `table` and within `reach` (m) of the pose, so the
-        correction never turns a reachable goal into a refusal."""
+        so far when adapting. A goal farther than one push of `reach` (m) slides is split into legs of at most
+        LEG_REACH x reach: the aim is then the end of the first leg, an intermediate goal of any yaw, and the
+        remaining pushes do the rest. A corrected aim stays on `table`, so the correction never turns a reachable
+        goal into a refusal."""
+        far = float(np.linalg.norm(self.goal.pose.xy - pose.xy))
+        legs = math.ceil(far / (LEG_REACH * reach)) if math.isfinite(reach) else 1
+        # more legs than pushes left: the goal itself, which the planner refuses with the reason
+        if far - self.goal.position_tolerance > reach and 1 < legs <= self.max_pushes - len(self.steps):
+            xy = self._on_table(pose.xy + (self.goal.pose.xy - pose.xy) / legs, table)
+            return Goal(Pose2D(float(xy[0]), float(xy[1]), self.goal.pose.yaw),
+                        max(self.goal.position_tolerance, LEG_TOLERANCE * far / legs), math.pi)
         if not self.adapt or not self.steps:
             return self.goal
         g = self.gain
@@ -128,11 +142,15 @@ class PushSession:
         dist = float(np.linalg.norm(delta))
         if dist > reach:
             delta = delta * (reach / dist)
-        xy = pose.xy + delta
-        if table is not None:
-            xy = np.clip(xy, [table.x_min, table.y_min], [table.x_max, table.y_max])
+        xy = self._on_table(pose.xy + delta, table)
         return Goal(Pose2D(float(xy[0]), float(xy[1]), self.goal.pose.yaw), self.goal.position_tolerance / g,
                     self.goal.yaw_tolerance)
+
+    @staticmethod
+    def _on_table(xy: np.ndarray, table: Optional[TableBounds]) -> np.ndarray:
+        if table is None:
+            return xy
+        return np.clip(xy, [table.x_min, table.y_min], [table.x_max, table.y_max])
 
     # ------------------------------------------------------------------------------------------ updates
     def record(self, start: Pose2D, predicted: Pose2D, observed: Pose2D, toppled: bool) -> PushStep:
