@@ -43,6 +43,7 @@ def record_session(bag: Path, pushes: int, friction: float, seed: int) -> int:
     import rclpy
     from geometry_msgs.msg import Twist, Vector3
 
+    from physdyn_ros.ros.qos import reliable_client
     from physdyn_ros.srv import PushObject, SpawnObject
 
     sim = subprocess.Popen([PY, "-m", "physdyn_ros.nodes.sim_node", "--ros-args", "-p", "real_time_factor:=0.0",
@@ -58,7 +59,7 @@ def record_session(bag: Path, pushes: int, friction: float, seed: int) -> int:
         while not rec.stdout.readline().startswith("recording "):
             if rec.poll() is not None:
                 raise SystemExit(f"recorder exited: {rec.stderr.read()[-1000:]}")
-        push, spawn = node.create_client(PushObject, "push"), node.create_client(SpawnObject, "spawn_object")
+        push, spawn = reliable_client(node, PushObject, "push"), reliable_client(node, SpawnObject, "spawn_object")
         if not (push.wait_for_service(timeout_sec=120) and spawn.wait_for_service(timeout_sec=10)):
             raise SystemExit("the sim node's services did not appear")
         deadline = time.monotonic() + 30

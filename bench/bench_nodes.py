@@ -19,8 +19,9 @@ up --nodes perception,predictor` does) and publishes the clouds, object states a
   of requests not answered (must be 0).
 The last line is one JSON object: service_p50_ms, service_p99_ms, service_callback_p50_ms, response_serialize_ms,
 response_deserialize_ms, node_cpu_per_request_ms, client_cpu_per_request_ms, twist_to_traj_p50_ms,
-twist_to_traj_p99_ms, clients8_req_per_s, clients8_lost, twists_lost, perception_dds_p50_ms, perception_dds_dropped,
-perception_local_p50_ms, load_average. A lost sample is counted, never a traceback.
+twist_to_traj_p99_ms, clients8_req_per_s, clients8_lost, clients8_lost_default_qos, twists_lost,
+perception_dds_p50_ms, perception_dds_dropped, perception_local_p50_ms, load_average.
+A lost sample is counted, never a traceback.
 Without a shipped model the default architecture (config/model_default.yaml) is timed with random weights.
 """
 from __future__ import annotations
@@ -122,8 +123,7 @@ class Bench:
         from sensor_msgs.msg import PointCloud2
 
         from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
-        from physdyn_ros.nodes.perception_node import FEATURE_QOS
-        from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS
+        from physdyn_ros.ros.qos import FEATURE_QOS, LATCHED, STATE_QOS, reliable_client
         from physdyn_ros.srv import PredictTrajectory
 
         # the client process as lean as a client can be: no parameter services, as many service clients as used
@@ -136,8 +136,11 @@ class Bench:
         self.cond = threading.Condition()
         self.node.create_subscription(ShapeFeature, "shape_feature", self._mark("feature"), FEATURE_QOS)
         self.node.create_subscription(PredictedTrajectory, "predicted_trajectory", self._mark("traj"), LATCHED)
-        self.clients = [self.node.create_client(PredictTrajectory, "predict_trajectory")
+        # the documented client QoS (keep-all replies) and, for comparison, rclpy's default service QoS
+        self.clients = [reliable_client(self.node, PredictTrajectory, "predict_trajectory")
                         for _ in range(max(1, clients))]
+        self.default_clients = [self.node.create_client(PredictTrajectory, "predict_trajectory")
+                                for _ in range(max(1, clients))]
         # One spinning thread: the bench measures the node, not its own GIL contention.
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
@@ -179,6 +182,8 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=100, help="samples per latency figure")
     parser.add_argument("--clients", type=int, default=8, help="concurrent service clients")
     parser.add_argument("--requests", type=int, default=25, help="requests per concurrent client")
+    parser.add_argument("--reply-timeout", type=float, default=30.0, help="s a client waits for one reply before it "
+                        "counts it as lost")
     parser.add_argument("--cloud-points", type=int, default=100_000, help="cloud size for the in-process figure")
     parser.add_argument("--dds-cloud-points", type=int, default=20_000,
                         help="cloud size sent over DDS (100k-point clouds, 1.6 MB, were lost on best-effort loopback)")
@@ -313,30 +318,41 @@ def main() -> int:
             print(f"  CPU per request: the predictor node's process {1e3 * node_cpu_ms:.2f} ms, this client process "
                   f"{1e3 * bench_cpu_ms:.2f} ms (all threads)")
 
-        # concurrency: N clients, each sending requests back to back
+        # concurrency: N clients, each sending requests back to back; with rclpy's default service QoS (keep
+        # last 10 replies: every client reads every client's replies, a burst can push its own out) and with the
+        # documented one (physdyn_ros.ros.qos.reliable_client)
         n = min(args.clients, len(bench.clients))
-        answered, failed = [0] * n, [0] * n
 
-        def worker(k: int) -> None:
-            for _ in range(args.requests):
-                res = call(bench.clients[k], request())
-                if res is not None and res.success:
-                    answered[k] += 1
-                else:
-                    failed[k] += 1
+        def burst(clients) -> tuple[int, int, float]:
+            answered, failed = [0] * n, [0] * n
 
-        for c in bench.clients[:n]:
-            assert c.wait_for_service(timeout_sec=30)
-        threads = [threading.Thread(target=worker, args=(k,)) for k in range(n)]
-        t = time.perf_counter()
-        for th in threads:
-            th.start()
-        for th in threads:
-            th.join()
-        wall = time.perf_counter() - t
+            def worker(k: int) -> None:
+                for _ in range(args.requests):
+                    res = call(clients[k], request(), timeout=args.reply_timeout)
+                    if res is not None and res.success:
+                        answered[k] += 1
+                    else:
+                        failed[k] += 1
+
+            for c in clients[:n]:
+                assert c.wait_for_service(timeout_sec=30)
+            threads = [threading.Thread(target=worker, args=(k,)) for k in range(n)]
+            t = time.perf_counter()
+            for th in threads:
+                th.start()
+            for th in threads:
+                th.join()
+            return sum(answered), sum(failed), time.perf_counter() - t
+
         total = n * args.requests
-        print(f"{n} concurrent clients x {args.requests} requests: {sum(answered) / wall:6.1f} requests/s, "
-              f"{sum(answered)}/{total} answered, {sum(failed)} failed or lost")
+        default_answered, default_lost, default_wall = burst(bench.default_clients)
+        print(f"{n} concurrent clients x {args.requests} requests, rclpy's default service QoS: "
+              f"{default_answered / default_wall:6.1f} requests/s, {default_answered}/{total} answered, "
+              f"{default_lost} failed or lost")
+        good, lost, wall = burst(bench.clients)
+        answered, failed = [good], [lost]
+        print(f"{n} concurrent clients x {args.requests} requests, the documented QoS (keep-all replies): "
+              f"{good / wall:6.1f} requests/s, {good}/{total} answered, {lost} failed or lost")
         print(json.dumps({
             "service_p50_ms": p(rtt, 50), "service_p99_ms": p(rtt, 99), "service_failed": service_failed,
             "service_callback_p50_ms": p(callback, 50), "response_serialize_ms": p(ser, 50),
@@ -345,6 +361,7 @@ def main() -> int:
             "client_cpu_per_request_ms": None if bench_cpu_ms is None else round(1e3 * bench_cpu_ms, 3),
             "twist_to_traj_p50_ms": p(lat, 50), "twist_to_traj_p99_ms": p(lat, 99), "twists_lost": twists_lost,
             f"clients{n}_req_per_s": round(sum(answered) / wall, 1), f"clients{n}_lost": sum(failed),
+            f"clients{n}_lost_default_qos": default_lost,
             "perception_dds_p50_ms": p(percep, 50), "perception_dds_dropped": max(5, args.samples // 5) - len(percep),
             "perception_local_p50_ms": p(local, 50), "load_average": round(os.getloadavg()[0], 2)}))
         return 0 if sum(failed) == 0 and service_failed == 0 and twists_lost == 0 else 1

@@ -134,7 +134,8 @@ def main() -> int:
 
     from physdyn_ros.launcher import Suite
     from physdyn_ros.msg import ShapeFeature
-    from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.ros.qos import FEATURE_QOS
     from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
     from physdyn_ros.resources import DEFAULT_MODEL
     from physdyn_ros.ros.cloud import xyz_to_cloud

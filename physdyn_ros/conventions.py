@@ -21,3 +21,7 @@ REST_LIN_VEL: float = 0.01  # m/s
 REST_ANG_VEL: float = 0.05  # rad/s
 #: ... for this many consecutive 1/15 s frames (the simulator and bags; a prediction rests at its first quiet step).
 REST_FRAMES: int = 4
+
+#: Environment variable `physdyn up` sets to its pid: a node whose parent is gone (killed, even with SIGKILL)
+#: stops itself (physdyn_ros.ros.run).
+PARENT_PID_ENV = "PHYSDYN_PARENT_PID"

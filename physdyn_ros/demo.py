@@ -84,14 +84,11 @@ class DemoClient:
         from rclpy.executors import MultiThreadedExecutor
 
         from .msg import ObjectState, PredictedTrajectory, ShapeFeature
-        from .nodes.perception_node import FEATURE_QOS
-        from .nodes.predictor_node import LATCHED
-        from sensor_msgs.msg import PointCloud2
-
-        from .nodes.sim_node import CLOUD_QOS, STATE_QOS
         from rclpy.parameter_client import AsyncParameterClient
+        from sensor_msgs.msg import PointCloud2
         from std_srvs.srv import Trigger
 
+        from .ros.qos import CLOUD_QOS, FEATURE_QOS, LATCHED, STATE_QOS, reliable_client
         from .srv import PredictTrajectory, PushObject, SpawnObject
 
         self.node = rclpy.create_node("physdyn_demo")
@@ -106,10 +103,10 @@ class DemoClient:
         self.node.create_subscription(PredictedTrajectory, "predicted_trajectory", self._add(self.trajs), LATCHED)
         self.node.create_subscription(TwistStamped, "initial_twist", self._add(self.twists), 10)
         self.node.create_subscription(PointCloud2, "cloud", self._add(self.clouds), CLOUD_QOS)
-        self.spawn = self.node.create_client(SpawnObject, "spawn_object")
-        self.push = self.node.create_client(PushObject, "push")
-        self.reset = self.node.create_client(Trigger, "reset")
-        self.predict = self.node.create_client(PredictTrajectory, "predict_trajectory")
+        self.spawn = reliable_client(self.node, SpawnObject, "spawn_object")
+        self.push = reliable_client(self.node, PushObject, "push")
+        self.reset = reliable_client(self.node, Trigger, "reset")
+        self.predict = reliable_client(self.node, PredictTrajectory, "predict_trajectory")
         self.predictor_params = AsyncParameterClient(self.node, "predictor")
         self.executor = MultiThreadedExecutor(num_threads=2)
         self.executor.add_node(self.node)

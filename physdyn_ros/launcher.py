@@ -33,6 +33,8 @@ from typing import IO, Any, Mapping, Sequence
 
 import yaml
 
+from .conventions import PARENT_PID_ENV
+
 
 
 @dataclass(frozen=True)
@@ -132,13 +134,48 @@ def parse_overrides(node: str, assignments: Sequence[str]) -> dict[str, Any]:
             value = yaml.safe_load(text) if text.strip() else ""
         except yaml.YAMLError as exc:
             raise ValueError(f"parameter override {item!r} of node '{node}': value is not valid YAML ({exc})")
-        default = known[name]
-        if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        elif isinstance(default, list) and default and isinstance(default[0], float) and isinstance(value, list):
-            value = [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
-        out[name] = value
+        try:
+            out[name] = typed_like(known[name], value)
+        except ValueError as exc:
+            raise ValueError(f"parameter override {item!r} of node '{node}': {exc}") from None
     return out
+
+
+def _type_name(value: Any) -> str:
+    return {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}.get(type(value), "a list")
+
+
+def typed_like(default: Any, value: Any) -> Any:
+    """`value` as the type of the parameter whose default is `default` (rcl keeps the params file's first value
+    when a later file gives another type, so a wrong type must be refused here). An integer is a valid float
+    (0 for real_time_factor 0.0) and a YAML number a valid string (object_id:=7); ValueError says what is
+    expected."""
+    def one(d: Any, v: Any) -> Any:
+        if isinstance(d, bool):
+            if isinstance(v, bool):
+                return v
+        elif isinstance(d, int):
+            if isinstance(v, int) and not isinstance(v, bool):
+                return v
+        elif isinstance(d, float):
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                return float(v)
+        elif isinstance(d, str):
+            if isinstance(v, str):
+                return v
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                return str(v)
+        else:
+            return v
+        raise ValueError(f"expects {_type_name(d)}, got {v!r}")
+
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise ValueError(f"expects a list like {default!r}, got {value!r}")
+        return [one(default[0], v) for v in value] if default else value
+    if isinstance(value, list):
+        raise ValueError(f"expects {_type_name(default)}, got the list {value!r}")
+    return one(default, value)
 
 
 def write_overrides(node: str, values: dict[str, Any], folder: Path) -> Path:
@@ -183,12 +220,15 @@ class LifecycleProbe:
         env = os.environ if env is None else env
         self._request = GetState.Request
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=int(env.get("ROS_DOMAIN_ID", "").strip() or 0),
+        # args=[]: rcl would otherwise read this process's own command line (physdyn up's --param NODE:NAME:=V
+        # looks like a deprecated remap rule to it).
+        rclpy.init(args=[], context=self.context, domain_id=int(env.get("ROS_DOMAIN_ID", "").strip() or 0),
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f"physdyn_up_probe_{os.getpid()}", context=self.context, enable_rosout=False,
                                       start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self.namespace = namespace or "/"
         self.clients = {n: self.node.create_client(GetState, f"{namespace}/{n}/get_state") for n in names}
         self.states: dict[str, str] = {}
         self._pending: dict[str, tuple[Any, float]] = {}
@@ -216,6 +256,22 @@ class LifecycleProbe:
                 self.states[name] = future.result().current_state.label
                 del self._pending[name]
         return dict(self.states)
+
+    def running(self, timeout: float = 1.5) -> list[str]:
+        """The names among this probe's nodes that some process already runs in its namespace: on the graph and
+        answering get_state within `timeout` s (a name the graph still lists for a node that is gone, or one that
+        does not spin, is not a running node)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            present = [n for n, ns in self.node.get_node_names_and_namespaces()
+                       if n in self.clients and ns.rstrip("/") == self.namespace.rstrip("/")]
+            if present:
+                self.poll(present, timeout=0.1)
+            else:
+                self.executor.spin_once(timeout_sec=0.1)
+            answered = sorted(n for n in present if n in self.states)
+            if (present and len(answered) == len(present)) or time.monotonic() >= deadline:
+                return answered
 
     def close(self) -> None:
         import rclpy
@@ -251,9 +307,9 @@ class NodeProcess:
     def poll(self) -> int | None:
         return self.proc.poll()
 
-    def interrupt(self) -> None:
+    def interrupt(self, sig: int = signal.SIGINT) -> None:
         if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
+            self.proc.send_signal(sig)
 
 
 class Suite:
@@ -292,13 +348,31 @@ class Suite:
         self.env.setdefault("PYTHONUNBUFFERED", "1")
         self.env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
         self.env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+        self.env[PARENT_PID_ENV] = str(os.getpid())  # the nodes stop when this process is gone
         self.dds_profile = dds_profile_env(self.env)
         self.procs: list[NodeProcess] = []
         self._files: list[IO[str]] = []
         #: the lifecycle state of each node, as its get_state service last answered (wait_ready)
         self.states: dict[str, str] = {}
 
-    def start(self) -> "Suite":
+    def already_running(self, timeout: float = 1.5) -> list[str]:
+        """The suite's nodes that another process already runs on this ROS domain and namespace."""
+        probe = LifecycleProbe([n for n, _ in self.nodes], self.namespace, self.env)
+        try:
+            return probe.running(timeout)
+        finally:
+            probe.close()
+
+    def start(self, check_running: bool = True) -> "Suite":
+        """Start the node processes; RuntimeError (nothing started) when `check_running` finds any of them
+        already running on this domain and namespace (two of a node would answer every request twice)."""
+        if check_running:
+            running = self.already_running()
+            if running:
+                domain = self.env.get("ROS_DOMAIN_ID", "").strip() or "0"
+                raise RuntimeError(f"node(s) {', '.join(running)} already run on ROS_DOMAIN_ID {domain} in namespace "
+                                   f"'{self.namespace or '/'}': stop that suite first, or use another "
+                                   "ROS_DOMAIN_ID or --namespace")
         if self.values:
             self._tmp = tempfile.TemporaryDirectory(prefix="physdyn_up_")
         for name, exe in self.nodes:
@@ -342,9 +416,12 @@ class Suite:
             probe.close()
 
     def stop(self, timeout: float = 10.0) -> dict[str, int | None]:
-        """SIGINT every node, then SIGTERM / SIGKILL the ones that linger. Returns the exit codes."""
+        """SIGINT every node, then SIGTERM / SIGKILL the ones that linger. Returns the exit codes.
+
+        A node that has not answered get_state yet may still be importing (before rclpy's signal handlers): it
+        gets SIGTERM, which ends it without a KeyboardInterrupt traceback."""
         for p in self.procs:
-            p.interrupt()
+            p.interrupt(signal.SIGINT if p.name in self.states else signal.SIGTERM)
         deadline = time.monotonic() + timeout
         for p in self.procs:
             try:
@@ -441,9 +518,14 @@ def run(args: argparse.Namespace) -> int:
         received.append(signum)
         stop.set()
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    # SIGHUP too (the terminal closed): every way of stopping physdyn up stops its nodes.
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        suite.start()
+        try:
+            suite.start()
+        except RuntimeError as exc:
+            print(f"physdyn up: error: {exc}", file=sys.stderr, flush=True)
+            return 1
         print(f"physdyn up: starting {', '.join(p.name for p in suite.procs)} with {suite.config}"
               f" (DDS profile: {suite.dds_profile or 'Fast DDS defaults'})", flush=True)
         try:
@@ -470,7 +552,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             codes = suite.stop()
             if received:
-                bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+                bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT, -signal.SIGTERM)}
                 if bad:
                     print(f"physdyn up: nodes exited with {bad}", file=sys.stderr)
     finally:

@@ -31,7 +31,7 @@ def session(rclpy_init, tmp_path_factory):
     from sensor_msgs.msg import PointCloud2
 
     from physdyn_ros.msg import ObjectState
-    from physdyn_ros.nodes.sim_node import CLOUD_QOS, STATE_QOS
+    from physdyn_ros.ros.qos import CLOUD_QOS, STATE_QOS
     from physdyn_ros.ros.convert import time_to_ns
     from physdyn_ros.srv import PushObject, SpawnObject
 

@@ -7,9 +7,12 @@ from geometry_msgs.msg import TwistStamped
 from rclpy.parameter import Parameter
 
 from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
-from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
-from physdyn_ros.nodes.predictor_node import LATCHED, PredictorNode
-from physdyn_ros.nodes.sim_node import STATE_QOS, SimNode
+from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.ros.qos import FEATURE_QOS
+from physdyn_ros.nodes.predictor_node import PredictorNode
+from physdyn_ros.ros.qos import LATCHED
+from physdyn_ros.nodes.sim_node import SimNode
+from physdyn_ros.ros.qos import STATE_QOS
 from physdyn_ros.ros.convert import time_to_ns
 from physdyn_ros.srv import PredictTrajectory, PushObject
 from test_nodes_support import Spinner, call, tiny_model, wait_for  # noqa: F401 - fixture

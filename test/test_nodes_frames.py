@@ -11,7 +11,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from physdyn_ros.msg import ShapeFeature
-from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
+from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.ros.qos import FEATURE_QOS
 from physdyn_ros.nodes.sim_node import SimNode
 from physdyn_ros.perception import camera_optical_pose
 from physdyn_ros.ros.cloud import cloud_to_xyz

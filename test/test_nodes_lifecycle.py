@@ -16,9 +16,11 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
 from physdyn_ros.msg import ObjectState, ShapeFeature
-from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
+from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.ros.qos import FEATURE_QOS
 from physdyn_ros.nodes.predictor_node import PredictorNode
-from physdyn_ros.nodes.sim_node import STATE_QOS, SimNode
+from physdyn_ros.nodes.sim_node import SimNode
+from physdyn_ros.ros.qos import STATE_QOS
 from physdyn_ros.ros.cloud import xyz_to_cloud
 from physdyn_ros.ros.convert import vector3
 from physdyn_ros.srv import PredictTrajectory, PushObject

@@ -14,8 +14,8 @@ from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker, MarkerArray
 
 from physdyn_ros.msg import ShapeFeature
-from physdyn_ros.nodes.perception_node import (FEATURE_QOS, MARKER_QOS, PerceptionNode, Preprocess, preprocess,
-                                               tf2_available)
+from physdyn_ros.nodes.perception_node import PerceptionNode, Preprocess, preprocess, tf2_available
+from physdyn_ros.ros.qos import FEATURE_QOS, LATCHED
 from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
 from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
 from physdyn_ros.ros.convert import ns_to_time, time_to_ns
@@ -145,8 +145,12 @@ def test_huge_cloud_is_bounded(rclpy_init, tiny_model):
 def test_throttle_is_per_reason_kind():
     from physdyn_ros.ros.throttle import ReasonThrottle
 
+    class Logger:
+        def warning(self, text: str) -> None:
+            logged.append(text)
+
     now, logged = [0.0], []
-    warn = ReasonThrottle(logged.append, 2.0, clock=lambda: now[0])
+    warn = ReasonThrottle(Logger(), "warning", 2.0, clock=lambda: now[0])
     assert warn("a", "the cloud is empty") and warn("b", "only 10 points left")
     now[0] = 1.0
     assert not warn("c", "only 12 points left")  # the same kind: the count differs, the reason does not
@@ -223,7 +227,7 @@ class Listener:
         self.features: list[ShapeFeature] = []
         self.markers: list[MarkerArray] = []
         self.node.create_subscription(ShapeFeature, "shape_feature", self.features.append, FEATURE_QOS)
-        self.node.create_subscription(MarkerArray, "object_markers", self.markers.append, MARKER_QOS)
+        self.node.create_subscription(MarkerArray, "object_markers", self.markers.append, LATCHED)
         self.cloud = self.node.create_publisher(PointCloud2, "cloud", 2)
 
     def of(self, stamp_ns: int) -> list[ShapeFeature]:
@@ -411,7 +415,8 @@ def test_the_predictor_addresses_any_tracked_object(rclpy_init, tiny_model):
     from geometry_msgs.msg import TwistStamped
 
     from physdyn_ros.msg import PredictedTrajectory
-    from physdyn_ros.nodes.predictor_node import LATCHED, PredictorNode
+    from physdyn_ros.nodes.predictor_node import PredictorNode
+    from physdyn_ros.ros.qos import LATCHED
     from physdyn_ros.srv import PredictTrajectory
     from test_nodes_support import call
 

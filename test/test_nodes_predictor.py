@@ -13,7 +13,8 @@ from rclpy.parameter import Parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
 from physdyn_ros.msg import ObjectState, PredictedTrajectory, ShapeFeature
-from physdyn_ros.nodes.predictor_node import LATCHED, STATE_QOS, PredictorNode
+from physdyn_ros.nodes.predictor_node import PredictorNode
+from physdyn_ros.ros.qos import LATCHED, STATE_QOS
 from physdyn_ros.ros.cloud import xyz_to_cloud
 from physdyn_ros.ros.convert import ns_to_time, point, time_to_ns, vector3
 from physdyn_ros.ros.trajectory import object_state

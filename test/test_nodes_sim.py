@@ -13,7 +13,8 @@ from std_srvs.srv import Trigger
 
 from physdyn_ros.conventions import DT
 from physdyn_ros.msg import ObjectState
-from physdyn_ros.nodes.sim_node import STATE_QOS, SimNode
+from physdyn_ros.nodes.sim_node import SimNode
+from physdyn_ros.ros.qos import STATE_QOS
 from physdyn_ros.ros.cloud import cloud_to_xyz
 from physdyn_ros.ros.convert import quat_to_matrix, time_to_ns
 from physdyn_ros.srv import PushObject, SpawnObject
@@ -248,7 +249,8 @@ def test_several_objects_tracked_pushed_by_id_and_refusals(rclpy_init, tiny_mode
     perception gives a feature per object at its centroid (within 1.5 cm); a push by id moves that object only
     and the tracked ids stay; an unknown id and an overlapping spawn are refused with the reason."""
     from physdyn_ros.msg import ShapeFeature
-    from physdyn_ros.nodes.perception_node import FEATURE_QOS, PerceptionNode
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.ros.qos import FEATURE_QOS
 
     sim = sim_node(real_time_factor=0.0, publish_cloud_rate=10.0, category="box",
                    objects=["", "id=can category=cylinder shape_seed=2 x=0.3 y=-0.05 yaw=0.3"])

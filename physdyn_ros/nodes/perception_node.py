@@ -24,7 +24,6 @@ import zlib
 
 import numpy as np
 from geometry_msgs.msg import Point
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -41,18 +40,9 @@ from ..ros.params import declare
 from ..ros.run import run_node
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
+from ..ros.qos import CLOUD_SENSOR_QOS, FEATURE_QOS, LATCHED
 from ..ros.throttle import ReasonThrottle
 
-#: SensorDataQoS (best effort, volatile) but depth 1: only the newest cloud matters, a slow callback never builds
-#: a backlog, and a queue of huge clouds would hold hundreds of MB.
-CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
-#: Latched: a node that starts later still receives the last features. Deep enough for one message per object of
-#: a cloud (a depth of 1 let a reliable writer replace the first objects' features before they were delivered).
-FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: Outline colours, picked by the object id (the same id keeps its colour).
 PALETTE = [(0.90, 0.10, 0.10), (0.10, 0.60, 0.90), (0.20, 0.75, 0.20), (0.95, 0.60, 0.05), (0.60, 0.25, 0.85),
            (0.05, 0.75, 0.70), (0.85, 0.30, 0.60), (0.55, 0.55, 0.10)]
@@ -64,6 +54,15 @@ def tf2_available() -> bool:
     except ImportError:
         return False
     return True
+
+
+def _transform_check(values) -> str | None:
+    """Parameter check of sensor_transform: 7 finite numbers with a non-zero quaternion."""
+    try:
+        parse_transform(values)
+    except ValueError as exc:
+        return f"is not a pose: {exc}"
+    return None
 
 
 class PerceptionNode(ManagedNode):
@@ -82,7 +81,8 @@ class PerceptionNode(ManagedNode):
         declare(self, "sensor_frame", "", "a cloud frame whose pose in table_frame is the static sensor_transform "
                 "(used instead of tf for that frame); empty = none")
         declare(self, "sensor_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "pose of sensor_frame in "
-                "table_frame: x, y, z (m), qx, qy, qz, qw (as static_transform_publisher takes it)")
+                "table_frame: x, y, z (m), qx, qy, qz, qw (as static_transform_publisher takes it)", length=7,
+                check=_transform_check)
         declare(self, "use_tf", True, "look up other frames with tf2 when tf2_ros can be imported (read on "
                 "configure)", read_only=True)
         declare(self, "tf_timeout", 0.05, "s to wait for a tf transform at the cloud's stamp", low=0.0, high=5.0)
@@ -102,8 +102,10 @@ class PerceptionNode(ManagedNode):
         declare(self, "object_points", d.object_points, "at most this many points per object (random subset) "
                 "for outlier removal and encoding", low=16, high=1_000_000)
         declare(self, "crop", d.crop, "keep only points inside the box crop_min..crop_max (table frame)")
-        declare(self, "crop_min", list(d.crop_min), "x, y, z lower corner of the crop box, m")
-        declare(self, "crop_max", list(d.crop_max), "x, y, z upper corner of the crop box, m")
+        declare(self, "crop_min", list(d.crop_min), "x, y, z lower corner of the crop box, m", length=3,
+                check=self._crop_check("crop_max", below=True))
+        declare(self, "crop_max", list(d.crop_max), "x, y, z upper corner of the crop box, m", length=3,
+                check=self._crop_check("crop_min", below=False))
         declare(self, "remove_plane", d.remove_plane, "remove the table plane (RANSAC: a plane within "
                 "plane_max_tilt of horizontal and plane_max_offset of z = 0, reaching beyond the objects) and "
                 "the points below it")
@@ -135,8 +137,8 @@ class PerceptionNode(ManagedNode):
         self.published = 0  # features
         self.last_error = ""
         self.last_ms = 0.0  # processing time of the last cloud
-        self._warn = ReasonThrottle(self.get_logger().warning, 2.0)
-        self._note = ReasonThrottle(self.get_logger().info, 10.0)
+        self._warn = ReasonThrottle(self.get_logger(), "warning", 2.0)
+        self._note = ReasonThrottle(self.get_logger(), "info", 10.0)
         self._tf_buffer = self._tf_listener = None
         self.refused = 0
         self._refusals = RefusalWindow()
@@ -158,10 +160,10 @@ class PerceptionNode(ManagedNode):
             # Its own node and thread: a lookup may wait (tf_timeout) inside this node's cloud callback.
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, None, spin_thread=True)
         self.pub = self.configured_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
-        self.pub_markers = self.configured_publisher(MarkerArray, "object_markers", MARKER_QOS)
+        self.pub_markers = self.configured_publisher(MarkerArray, "object_markers", LATCHED)
 
     def activate(self) -> None:
-        self.active_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_QOS)
+        self.active_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_SENSOR_QOS)
 
     def cleanup(self) -> None:
         self._stop_tf()
@@ -194,6 +196,18 @@ class PerceptionNode(ManagedNode):
         self.predictor.encode(found.objects[0].points)
 
     # ------------------------------------------------------------------------------------------------ settings
+    def _crop_check(self, other: str, below: bool):
+        """A parameter check: crop_min must lie below crop_max on every axis (and crop_max above crop_min)."""
+        def check(value) -> str | None:
+            if not self.has_parameter(other) or len(value) != 3:
+                return None
+            there = list(self.get_parameter(other).value)
+            lo, hi = (value, there) if below else (there, value)
+            if len(there) == 3 and not all(a < b for a, b in zip(lo, hi)):
+                return f"must lie {'below' if below else 'above'} {other} {there} on every axis, got {list(value)}"
+            return None
+        return check
+
     def config(self) -> SceneConfig:
         """The segmentation settings, read from the parameters now (they may change at run time)."""
         p = {name: self.get_parameter(name).value for name in SceneConfig.__dataclass_fields__}

@@ -35,7 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Path
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
 from ..conventions import REST_ANG_VEL, REST_LIN_VEL, TABLE_FRAME
@@ -46,19 +45,13 @@ from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
 from ..ros.params import declare
+from ..ros.qos import FEATURE_QOS, LATCHED, STATE_QOS
 from ..ros.run import run_node
 from ..ros.throttle import ReasonThrottle
 from ..ros.trajectory import msg_to_path, trajectory_markers, trajectory_to_msg
 from ..shapes.core import DEFAULT_DENSITY
 from ..srv import PlanPush, PredictTrajectory
 
-LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: Features are latched by the perception node; keep a few per object (several objects may be published).
-FEATURE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: States may arrive in bursts (the sim at real_time_factor 0): a deep queue loses none.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE)
 #: Where the pose at the push comes from (parameter initial_pose_source).
 POSE_SOURCES = ("object_state", "shape_feature")
 #: A stamp this close to another counts as the same instant (float round-trips of stamps).
@@ -72,6 +65,10 @@ ABSURD_GAP = 86_400.0
 #: A request's cloud and initial pose describe one object: its centre may lie at most this far (m) outside
 #: the cloud's bounding sphere (a partial view's centroid lies a few cm from the centre of mass).
 POSE_CLOUD_SLACK = 0.1
+#: m/s: the largest vertical speed of the training pushes (3.5 m/s at 10 degrees above the horizontal).
+MAX_VERTICAL_SPEED = 0.6
+#: The finest position (m) and yaw (rad) tolerance a plan_push request may ask for.
+MIN_POSITION_TOLERANCE, MIN_YAW_TOLERANCE = 1e-4, 1e-4
 
 
 class RequestError(ValueError):
@@ -117,7 +114,8 @@ class PredictorNode(ManagedNode):
                                         read_only=True)
         declare(self, "object_id", "", "predict for this object only; empty = the object of the latest "
                 "shape feature")
-        declare(self, "horizon", 60, "steps predicted per push (1/15 s each) and the service default", low=1)
+        declare(self, "horizon", 60, "steps predicted per push (1/15 s each) and the service default; at most "
+                "the model's max_horizon", low=1, check=self._within_max_horizon)
         declare(self, "initial_pose_source", "object_state", "'object_state': pose at the push = the "
                 "object_state stamped at the twist's stamp (waits up to state_wait for it); 'shape_feature': "
                 "the feature's centroid and canonical heading (no tracker needed; predicted poses are then "
@@ -130,6 +128,9 @@ class PredictorNode(ManagedNode):
                 high=10.0)
         declare(self, "max_linear_speed", 5.0, "initial |v| above this (m/s) is rejected as absurd", low=0.0)
         declare(self, "max_angular_speed", 60.0, "initial |w| above this (rad/s) is rejected as absurd", low=0.0)
+        declare(self, "max_vertical_speed", MAX_VERTICAL_SPEED, "initial |v_z| above this (m/s) is rejected: the "
+                "model was trained on pushes along the table (impulses at most 10 degrees off the horizontal), "
+                "not on launches or objects driven into the table", low=0.0)
         declare(self, "steps_in", 0, "observed states (observed_state topic) after the push to feed the model "
                 "before it predicts on its own; > 0 publishes a corrected trajectory for each observed state, up to "
                 "steps_in", low=0)
@@ -150,7 +151,8 @@ class PredictorNode(ManagedNode):
                 f"gives no mass; 0 = the simulator's density ({DEFAULT_DENSITY:g}, shapes.DEFAULT_DENSITY)",
                 low=0.0, high=MAX_DENSITY)
         declare(self, "plan_table_bounds", [-1.0, 1.0, -1.0, 1.0], "x_min, x_max, y_min, y_max (m) of the table "
-                "top in table_frame: starts, goals and predicted paths must stay inside")
+                "top in table_frame: starts, goals and predicted paths must stay inside", length=4,
+                check=ordered_bounds)
 
         self.predictor = None  # the model (Predictor) and planner: loaded on configure, released on cleanup
         self.planner = None
@@ -165,8 +167,8 @@ class PredictorNode(ManagedNode):
         self.predictions = 0
         self.rejected = 0
         self.last_error = ""
-        self._error_log = ReasonThrottle(self.get_logger().error, 1.0)
-        self._warn_log = ReasonThrottle(self.get_logger().warning, 1.0)
+        self._error_log = ReasonThrottle(self.get_logger(), "error", 1.0)
+        self._warn_log = ReasonThrottle(self.get_logger(), "warning", 1.0)
 
         # One group, the node's default one, which also runs the lifecycle transitions: the node runs on a single
         # thread (main()); the group only matters to a caller that adds this node to a MultiThreadedExecutor,
@@ -181,7 +183,11 @@ class PredictorNode(ManagedNode):
     # -------------------------------------------------------------------------------------------- lifecycle
     def configure(self) -> None:
         p = self._param
-        self.predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")))
+        predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")))
+        if int(p("horizon")) > int(predictor.max_horizon):
+            raise ValueError(f"parameter horizon {p('horizon')} exceeds the max_horizon {predictor.max_horizon} of "
+                             f"model {predictor.model_id}")
+        self.predictor = predictor
         self.model_id = self.predictor.model_id
         from ..planning import PushPlanner
 
@@ -270,6 +276,17 @@ class PredictorNode(ManagedNode):
             raise RequestError(f"linear speed {np.linalg.norm(lin):.3g} m/s exceeds max_linear_speed {vmax:g}")
         if np.linalg.norm(ang) > wmax:
             raise RequestError(f"angular speed {np.linalg.norm(ang):.3g} rad/s exceeds max_angular_speed {wmax:g}")
+        vzmax = float(self._param("max_vertical_speed"))
+        if abs(lin[2]) > vzmax:
+            raise RequestError(f"vertical speed linear.z = {lin[2]:.3g} m/s exceeds max_vertical_speed {vzmax:g}: "
+                               "the model predicts pushes along the table, not launches or objects driven into it")
+
+    def _within_max_horizon(self, value: int) -> str | None:
+        """Parameter check: horizon may not exceed the loaded model's max_horizon."""
+        predictor = getattr(self, "predictor", None)
+        if predictor is not None and int(value) > int(predictor.max_horizon):
+            return f"{value} exceeds the max_horizon {predictor.max_horizon} of model {predictor.model_id}"
+        return None
 
     def target_object(self, requested: str = "") -> str:
         oid = requested or self._param("object_id") or self._latest_feature_id
@@ -595,13 +612,17 @@ class PredictorNode(ManagedNode):
     def planner_config(self, req: PlanPush.Request):
         from ..planning import PlannerConfig, TableBounds
 
-        bounds = list(self._param("plan_table_bounds") or [])
-        if bounds and len(bounds) != 4:
-            raise RequestError(f"plan_table_bounds must be [x_min, x_max, y_min, y_max] or [], got {bounds}")
+        bounds = list(self._param("plan_table_bounds"))
         for name in ("max_speed", "time_budget", "mass", "position_tolerance", "yaw_tolerance"):
             v = float(getattr(req, name))
             if not np.isfinite(v) or v < 0:
                 raise RequestError(f"{name} must be finite and >= 0 (0 = the node's default), got {v}")
+        if 0 < req.position_tolerance < MIN_POSITION_TOLERANCE:
+            raise RequestError(f"position_tolerance {req.position_tolerance:g} m is below {MIN_POSITION_TOLERANCE:g} "
+                               "m: no push ends that exactly")
+        if 0 < req.yaw_tolerance < MIN_YAW_TOLERANCE:
+            raise RequestError(f"yaw_tolerance {req.yaw_tolerance:g} rad is below {MIN_YAW_TOLERANCE:g} rad: no push "
+                               "ends that exactly")
         vmax = float(self._param("max_linear_speed"))
         max_speed = req.max_speed or float(self._param("plan_max_speed"))
         if max_speed > vmax:
@@ -641,6 +662,7 @@ class PredictorNode(ManagedNode):
         try:
             self.check_frame(req.header.frame_id, "request header")
             cfg = self.planner_config(req)
+            res.reach = float(cfg.reach())  # a refusal carries it too: push_to_goal splits a far goal by it
             try:
                 gp, gq = pose_to_numpy(req.goal_pose, zero_is_identity=True)
             except ValueError as exc:
@@ -680,6 +702,13 @@ class PredictorNode(ManagedNode):
                                            plan.robust_topple_probability))
         self.get_logger().info(f"plan_push '{object_id}': {plan.message}")
         return res
+
+
+def ordered_bounds(bounds) -> str | None:
+    """Parameter check of plan_table_bounds: x_min < x_max and y_min < y_max, all finite."""
+    if len(bounds) == 4 and not (np.all(np.isfinite(bounds)) and bounds[0] < bounds[1] and bounds[2] < bounds[3]):
+        return f"must be finite [x_min, x_max, y_min, y_max] with x_min < x_max and y_min < y_max, got {list(bounds)}"
+    return None
 
 
 def check_pose_on_cloud(position: np.ndarray, cloud: np.ndarray) -> None:

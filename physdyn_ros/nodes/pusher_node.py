@@ -41,6 +41,7 @@ from ..ros.convert import pose, pose_to_numpy, quat_yaw, time_to_ns, twist_to_nu
 from ..ros.diagnostics import OK, WARN, Diagnostics, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.params import declare
+from ..ros.qos import reliable_client
 from ..ros.run import run_node
 from ..srv import PlanPush, PredictTrajectory, PushObject
 from .predictor_node import FEATURE_QOS, STATE_QOS  # the subscriber side of the same topics
@@ -105,12 +106,12 @@ class PusherNode(ManagedNode):
         self.last_result = ""
         # clients hold no resources: made once, used while active
         clients = ReentrantCallbackGroup()
-        self.plan_client = self.create_client(PlanPush, self.get_parameter("plan_service").value,
+        self.plan_client = reliable_client(self, PlanPush, self.get_parameter("plan_service").value,
+                                           callback_group=clients)
+        self.predict_client = reliable_client(self, PredictTrajectory, self.get_parameter("predict_service").value,
                                               callback_group=clients)
-        self.predict_client = self.create_client(PredictTrajectory, self.get_parameter("predict_service").value,
-                                                 callback_group=clients)
-        self.push_client = self.create_client(PushObject, self.get_parameter("push_service").value,
-                                              callback_group=clients)
+        self.push_client = reliable_client(self, PushObject, self.get_parameter("push_service").value,
+                                           callback_group=clients)
         self._inputs = MutuallyExclusiveCallbackGroup()
         self.diagnostics = Diagnostics(self, "push_to_goal", self.report)
         self.start()  # autostart: configure + activate
@@ -283,6 +284,7 @@ class PusherNode(ManagedNode):
         state = self._latest(req.object_id)
         if state is None:
             raise EpisodeError("invalid", f"no object_state of '{req.object_id}' received yet")
+        reach = math.inf  # m one push slides: unknown until plan_push says
         while True:
             pose = self._pose = self._state_pose(state)
             stop = session.check(pose, bool(state.toppled))
@@ -295,8 +297,12 @@ class PusherNode(ManagedNode):
             feedback = PushToGoal.Feedback(push_index=k, stage="planning")
             feedback.position_error, feedback.yaw_error = goal_errors(pose, goal)
             handle.publish_feedback(feedback)
-            aim = session.aim(pose)
+            aim = session.aim(pose, reach=reach)
             plan = self._plan(req, aim)
+            if not plan.success and 0 < plan.reach < reach:  # too far for one push: aim at the first leg's end
+                reach = plan.reach
+                aim = session.aim(pose, reach=reach)
+                plan = self._plan(req, aim)
             if not plan.success and aim is not goal:  # the slide-ratio correction must not cause a refusal
                 plan = self._plan(req, goal)
             if handle.is_cancel_requested:

@@ -113,7 +113,7 @@ class RecorderNode(Node):
                            "or be empty)", read_only=True),
             topics=declare(self, "topics", list(c.topics) or list(SUITE_TOPICS), "topics to record: NAME (type "
                            "from the suite or the publishers) or NAME:package/msg/Type", read_only=True),
-            storage=declare(self, "storage", c.storage, "bag storage: mcap or sqlite3", read_only=True),
+            storage=declare(self, "storage", c.storage, "bag storage", read_only=True, choices=("mcap", "sqlite3")),
             split_duration=declare(self, "split_duration", float(c.split_duration), "s of wall time per bag file "
                                    "(bounds what a crash loses); 0 = no limit", read_only=True, low=0.0),
             split_size=declare(self, "split_size", int(c.split_size), "bytes per bag file; 0 = no limit",

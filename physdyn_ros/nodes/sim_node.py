@@ -36,7 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from nav_msgs.msg import Odometry
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
@@ -45,11 +44,13 @@ from std_srvs.srv import Trigger
 from ..conventions import DT, TABLE_FRAME
 from ..msg import ObjectState
 from ..perception.frames import RigidTransform, camera_optical_pose
+from ..sim.camera import MAX_PIXELS as MAX_CAMERA_PIXELS, MIN_PIXELS as MIN_CAMERA_PIXELS, CameraSpec, DepthCamera
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, quat_to_matrix, twist, vector3, xyz_to_numpy
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.params import declare
+from ..ros.qos import CLOUD_QOS, LATCHED, STATE_QOS
 from ..ros.run import run_node
 from ..ros.trajectory import object_state
 from ..srv import PushObject, SpawnObject
@@ -58,16 +59,15 @@ DT_NS = int(round(DT * 1e9))
 #: m, the size range of a spawned object along each axis: what a robot pushes on a table (scale 1000 made a
 #: box of 494,000 t).
 MIN_OBJECT_SIZE, MAX_OBJECT_SIZE = 0.01, 1.0
-#: object_state keeps a deep history: at real_time_factor 0 a whole push is published within milliseconds and a
-#: subscriber that wants every frame (the demo, a recorder) must not lose the early ones.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
-#: Sensor drivers publish reliable (REP 2003); consumers may subscribe best effort.
-CLOUD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
-#: /tf_static as tf2_ros.StaticTransformBroadcaster publishes it: latched for late listeners.
-TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CLOUD_FRAMES = ("table", "camera")
+#: cloud_source values and collision values.
+CLOUD_SOURCES = ("surface", "camera")
+COLLISIONS = ("auto", "hull")
+#: m: objects are spawned at most this far from the table frame's origin along x and y.
+MAX_SPAWN_DISTANCE = 10.0
+#: m: a push's contact point may lie at most this far outside the object's hull (a pusher's tip, the hull's
+#: approximation of a curved surface).
+MAX_CONTACT_GAP = 0.02
 #: SpawnObject.category that removes the object named object_id instead of spawning one.
 REMOVE = "remove"
 #: Keys of an `objects` parameter entry ("id=can category=cylinder x=0.25 ..."); id is required.
@@ -80,7 +80,6 @@ class SimObject:
 
     spawn_pose: tuple[float, float, float]  # x, y (m), yaw (rad): where reset puts it back
     cloud_obj: np.ndarray  # surface samples in the object frame (cloud_source surface)
-    visual: int | None = None  # collision-free copy drawn by the simulated camera (pybullet body id)
 
 
 def parse_object_entry(entry: str, defaults: dict) -> dict:
@@ -120,8 +119,10 @@ class SimNode(ManagedNode):
                 low=0)
         declare(self, "mesh_path", "", "mesh file (OBJ/STL/PLY, metres, z up) to spawn at start instead of a "
                 "category")
-        declare(self, "scale", [1.0, 1.0, 1.0], "per-axis scale of the shape (object frame)")
-        declare(self, "spawn_pose", [0.0, 0.0, 0.0], "x (m), y (m), yaw (rad) of the object at spawn and reset")
+        declare(self, "scale", [1.0, 1.0, 1.0], "per-axis scale of the shape (object frame)", length=3, low=1e-3,
+                high=100.0)
+        declare(self, "spawn_pose", [0.0, 0.0, 0.0], "x (m), y (m), yaw (rad) of the object at spawn and reset",
+                length=3, low=-MAX_SPAWN_DISTANCE, high=MAX_SPAWN_DISTANCE)
         declare(self, "objects", [""], "more objects spawned at start, one per entry: 'id=NAME category=C "
                 "shape_seed=N mesh_path=P scale=SX,SY,SZ x=X y=Y yaw=YAW friction=MU' (only id is required; the "
                 "others default to the parameters above and x = y = yaw = 0); empty entries are ignored")
@@ -129,7 +130,7 @@ class SimNode(ManagedNode):
                                        "table", low=0.0, high=10.0)
         declare(self, "collision", "auto", "collision geometry: 'auto' (hull for convex shapes, cached V-HACD "
                 "decomposition otherwise) or 'hull' (convex hull for everything; faster first spawn); read on "
-                "configure", read_only=True)
+                "configure", read_only=True, choices=COLLISIONS)
         self.rate: float = declare(self, "rate", 15.0, "Hz at which the state is published while nothing moves "
                                    "(every simulated frame is published during a push)", read_only=True,
                                    low=0.1, high=1000.0)
@@ -139,15 +140,17 @@ class SimNode(ManagedNode):
                                          read_only=True, low=0.0, high=100.0)
         declare(self, "cloud_source", "surface", "'surface': samples of the whole object surface posed by the "
                 "current state; 'camera': partial view rendered by a simulated depth camera (pybullet "
-                "TinyRenderer), object pixels only")
+                "TinyRenderer), object pixels only", choices=CLOUD_SOURCES)
         declare(self, "cloud_points", 1024, "points sampled on the surface (cloud_source surface)", low=16,
                 high=10_000_000)
         declare(self, "cloud_noise", 0.0, "std dev of Gaussian noise added to each cloud point, m", low=0.0,
                 high=0.1)
         declare(self, "camera_eye", [0.6, 0.0, 0.45], "camera position in the table frame, m (cloud_source "
-                "camera)")
-        declare(self, "camera_target", [0.0, 0.0, 0.05], "point the camera looks at, table frame, m")
-        declare(self, "camera_resolution", [320, 240], "rendered image width, height in pixels")
+                "camera)", length=3, low=-100.0, high=100.0, check=self._apart_from("camera_target"))
+        declare(self, "camera_target", [0.0, 0.0, 0.05], "point the camera looks at, table frame, m", length=3,
+                low=-100.0, high=100.0, check=self._apart_from("camera_eye"))
+        declare(self, "camera_resolution", [320, 240], "rendered image width, height in pixels", length=2,
+                low=MIN_CAMERA_PIXELS, high=MAX_CAMERA_PIXELS)
         declare(self, "camera_fov", 60.0, "vertical field of view, degrees", low=1.0, high=170.0)
         self.cloud_frame: str = declare(self, "cloud_frame", "table", "frame of the published cloud: 'table' "
                                         "(table_frame) or 'camera' (camera_frame, the simulated camera's optical "
@@ -196,6 +199,7 @@ class SimNode(ManagedNode):
         from ..sim import SimConfig, Simulator  # pybullet is imported here, once per process
 
         self.sim = Simulator(SimConfig(collision=self.get_parameter("collision").value))
+        self.camera = DepthCamera(self.sim)
         g = self._group
         self.pub_state = self.configured_publisher(ObjectState, "object_state", STATE_QOS)
         self.pub_odom = self.configured_publisher(Odometry, "odom", 50)
@@ -209,7 +213,7 @@ class SimNode(ManagedNode):
             try:
                 from tf2_msgs.msg import TFMessage
 
-                self.pub_tf_static = self.configured_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+                self.pub_tf_static = self.configured_publisher(TFMessage, "/tf_static", LATCHED)
             except ImportError:  # ROS from PyPI wheels has no tf2_msgs: the perception node takes a parameter
                 pass
         # At real_time_factor 0 the step timer fires every millisecond and simulates a batch of frames per tick,
@@ -310,6 +314,9 @@ class SimNode(ManagedNode):
         x, y, yaw = (float(v) for v in spawn_pose)
         if not all(math.isfinite(v) for v in (x, y, yaw)):
             raise ValueError("spawn pose must be finite")
+        if max(abs(x), abs(y)) > MAX_SPAWN_DISTANCE:
+            raise ValueError(f"spawn position ({x:g}, {y:g}) m is more than {MAX_SPAWN_DISTANCE:g} m from the table "
+                             "frame's origin")
         if not 0.0 <= friction <= 10.0:
             raise ValueError(f"friction must be in [0, 10], got {friction}")
         shape = self.load_shape(category, mesh_path, shape_seed)
@@ -321,7 +328,7 @@ class SimNode(ManagedNode):
         oid = object_id or self.default_object_id
         self._hold_still()
         self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction, object_id=oid)
-        self._drop_visual(oid)
+        self.camera.forget(oid)
         n = int(self.get_parameter("cloud_points").value)
         if n == len(shape.points):
             pts = shape.points.astype(np.float64)
@@ -338,16 +345,21 @@ class SimNode(ManagedNode):
         self.sim.get(object_id)  # refuse an unknown id before a running push is stopped
         self._hold_still()
         self.sim.remove(object_id)
-        self._drop_visual(object_id)
+        self.camera.forget(object_id)
         del self.objects[object_id]
         if self.object_id == object_id:
             self.object_id = self.sim.ids[-1] if self.sim.ids else self.default_object_id
 
-    def _drop_visual(self, object_id: str) -> None:
-        obj = self.objects.get(object_id)
-        if obj is not None and obj.visual is not None:
-            self.sim.client.removeBody(obj.visual)
-            obj.visual = None
+    def surface_gap(self, object_id: str, point: np.ndarray) -> float:
+        """How far (m) `point` (table frame) lies outside the object's convex hull; 0 on or inside it. The
+        largest signed distance to the hull's face planes: exact off a face, a lower bound off an edge."""
+        from scipy.spatial import ConvexHull
+
+        b = self.sim.get(object_id)
+        pos, q, _, _ = self.sim.state(object_id)
+        local = quat_to_matrix(q).T @ (np.asarray(point, dtype=np.float64) - pos)
+        hull = ConvexHull(np.asarray(b.shape.hull()[0], dtype=np.float64) * b.scale)
+        return max(0.0, float(np.max(hull.equations[:, :3] @ local + hull.equations[:, 3])))
 
     @property
     def spawn_pose(self) -> tuple[float, float, float]:
@@ -392,7 +404,7 @@ class SimNode(ManagedNode):
     def current_cloud(self) -> np.ndarray:
         """The cloud the sensor would see now (every object), table frame, (N, 3)."""
         if self.get_parameter("cloud_source").value == "camera":
-            pts = self._camera_cloud()
+            pts = self.camera.render(self.camera_spec())
         else:
             posed = []
             for oid, (pos, q, _, _) in self.sim.states().items():
@@ -403,50 +415,22 @@ class SimNode(ManagedNode):
             pts = pts + self._rng.normal(0.0, noise, pts.shape)
         return pts
 
-    def _camera_cloud(self) -> np.ndarray:
-        """Back-project the objects' pixels of a rendered depth image (pybullet TinyRenderer, DIRECT mode)."""
+    def camera_spec(self) -> CameraSpec:
+        """The simulated camera as its parameters set it now."""
         p = self.get_parameter
-        eye, target = np.asarray(p("camera_eye").value, float), np.asarray(p("camera_target").value, float)
-        width, height = (int(v) for v in p("camera_resolution").value)
-        fov = float(p("camera_fov").value)
-        near, far = 0.05, 5.0  # tight range: better depth-buffer precision
-        fwd = target - eye
-        fwd /= np.linalg.norm(fwd)
-        up_hint = np.array([0.0, 0.0, 1.0]) if abs(fwd[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
-        right = np.cross(fwd, up_hint)
-        right /= np.linalg.norm(right)
-        up = np.cross(right, fwd)
-        c = self.sim.client
-        bodies = {b.uid for b in self.sim.bodies.values()} | {self._visual_body(k) for k in self.sim.ids}
-        if not bodies:
-            return np.zeros((0, 3))
-        view = c.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist())
-        proj = c.computeProjectionMatrixFOV(fov, width / height, near, far)
-        _, _, _, depth, seg = c.getCameraImage(width, height, view, proj, renderer=c.ER_TINY_RENDERER)
-        depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
-        seg = np.asarray(seg).reshape(height, width)
-        mask = np.isin(seg & ((1 << 24) - 1), list(bodies))  # object pixels only (seg = body + (link + 1) << 24)
-        z = far * near / (far - (far - near) * depth[mask])  # OpenGL depth buffer -> distance along fwd
-        v_idx, u_idx = np.nonzero(mask)
-        tan = math.tan(math.radians(fov) / 2)
-        xn = (2.0 * (u_idx + 0.5) / width - 1.0) * tan * width / height
-        yn = (1.0 - 2.0 * (v_idx + 0.5) / height) * tan
-        return eye + z[:, None] * (fwd + xn[:, None] * right + yn[:, None] * up)
+        return CameraSpec.make(p("camera_eye").value, p("camera_target").value, p("camera_resolution").value,
+                               p("camera_fov").value)
 
-    def _visual_body(self, object_id: str) -> int:
-        """A collision-free, massless copy of the object's mesh that the renderer can draw, posed like the object.
-
-        Bodies built from collision vertices have no visual shape, so TinyRenderer would not see them. The copy
-        has no collision shape: physics and ray tests ignore it. Spawning or removing the object removes it.
-        """
-        c, obj, b = self.sim.client, self.objects[object_id], self.sim.get(object_id)
-        if obj.visual is None:
-            vs = c.createVisualShape(c.GEOM_MESH, vertices=b.shape.vertices.tolist(),
-                                     indices=b.shape.faces.reshape(-1).tolist(), meshScale=b.scale.tolist())
-            obj.visual = c.createMultiBody(baseMass=0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=vs)
-        pos, q, _, _ = self.sim.state(object_id)
-        c.resetBasePositionAndOrientation(obj.visual, pos.tolist(), q.tolist())
-        return obj.visual
+    def _apart_from(self, other: str):
+        """A parameter check: camera_eye and camera_target must differ (the camera looks from one to the other)."""
+        def check(value) -> str | None:
+            if not self.has_parameter(other):
+                return None
+            there = np.asarray(self.get_parameter(other).value, dtype=np.float64)
+            if len(value) == len(there) and np.linalg.norm(np.asarray(value, dtype=np.float64) - there) < 1e-9:
+                return f"must differ from {other} {there.tolist()} (the camera looks from camera_eye to camera_target)"
+            return None
+        return check
 
     def camera_pose(self) -> RigidTransform:
         """Pose of camera_frame in the table frame (maps optical-frame points into the table frame) from the
@@ -471,14 +455,14 @@ class SimNode(ManagedNode):
 
     def _on_cloud(self) -> None:
         stamp_ns = self._sim_ns if self._running else self._idle_stamp()
-        pts, frame = self.current_cloud(), self.table_frame
-        if self.cloud_frame == "camera":
-            try:
+        try:  # the parameters are checked when set; this catches what only rendering finds
+            pts, frame = self.current_cloud(), self.table_frame
+            if self.cloud_frame == "camera":
                 pose = self.camera_pose()
-            except ValueError as exc:  # camera_eye set equal to camera_target at run time
-                self.get_logger().warning(f"no cloud: {exc}", throttle_duration_sec=5.0)
-                return
-            pts, frame = pose.inverse().apply(np.asarray(pts, dtype=np.float64)), self.camera_frame
+                pts, frame = pose.inverse().apply(np.asarray(pts, dtype=np.float64)), self.camera_frame
+        except ValueError as exc:
+            self.get_logger().warning(f"no cloud: {exc}", throttle_duration_sec=5.0)
+            return
         self.pub_cloud.publish(xyz_to_cloud(pts, frame, ns_to_time(stamp_ns)))
 
     def _on_idle(self) -> None:
@@ -507,6 +491,8 @@ class SimNode(ManagedNode):
             lin, ang = xyz_to_numpy(req.velocity.linear), xyz_to_numpy(req.velocity.angular)
             if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
                 return False, "push rejected: velocity is not finite"
+            if not (np.any(lin) or np.any(ang)):
+                return False, "push rejected: the velocity is zero (use_velocity sets it; give a non-zero one)"
             if np.linalg.norm(lin) > vmax or np.linalg.norm(ang) > wmax:
                 return False, (f"push rejected: velocity |v| = {np.linalg.norm(lin):.3g} m/s, |w| = "
                                f"{np.linalg.norm(ang):.3g} rad/s exceeds max_linear_speed {vmax:g} / "
@@ -520,9 +506,11 @@ class SimNode(ManagedNode):
                 return False, "push rejected: the impulse is zero"
             if not np.any(point):
                 point = pos
-            if np.linalg.norm(point - pos) > 1.0:
-                return False, (f"push rejected: point {point.tolist()} is {np.linalg.norm(point - pos):.2f} m from "
-                               "the object's centre of mass")
+            gap = self.surface_gap(oid, point)
+            if gap > MAX_CONTACT_GAP:
+                return False, (f"push rejected: point {[round(v, 4) for v in point.tolist()]} is {gap:.3f} m outside "
+                               f"the surface of {oid!r} (at most {MAX_CONTACT_GAP:g} m: the point is where the "
+                               "pusher touches the object)")
             lin, ang = self.sim.apply_impulse(impulse, point, oid)
             if np.linalg.norm(lin) > vmax or np.linalg.norm(ang) > wmax:
                 self.sim.set_velocity(v_before, w_before, oid)

@@ -23,6 +23,10 @@ FLOAT32 = 7
 
 def _xyz_dtype(msg: Any) -> np.dtype:
     """A structured dtype picking x, y, z out of one point of `msg` (itemsize = point_step)."""
+    names = [f.name for f in msg.fields]
+    repeated = sorted({n for n in names if n in XYZ and names.count(n) > 1})
+    if repeated:  # which one is the coordinate? Refuse rather than guess
+        raise ValueError(f"cloud has the field {'/'.join(repeated)} more than once (fields: {', '.join(names)})")
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in XYZ if n not in fields]
     if missing:

@@ -37,7 +37,8 @@ class Diagnostics:
         if state is not None:  # a managed node: its state first; not serving is a WARN (ERROR stays ERROR)
             error = getattr(self.node, "transition_error", "")
             values = {"lifecycle_state": state, "transition_error": error,
-                      "refused_inactive": getattr(self.node, "refused_inactive", 0), **values}
+                      "refused_inactive": getattr(self.node, "refused_inactive", 0),
+                      "callback_errors": getattr(self.node, "callback_errors", 0), **values}
             if state != "active":
                 level = max(level, WARN)
                 message = f"lifecycle state '{state}': not serving" + (f" ({error})" if error else "")

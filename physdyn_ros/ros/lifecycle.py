@@ -59,6 +59,8 @@ class ManagedNode(LifecycleNode):
         self.transition_error = ""
         #: Requests refused because the node was not active.
         self.refused_inactive = 0
+        #: Callbacks that raised unexpectedly (logged with the traceback, the node went on).
+        self.callback_errors = 0
         self._failure: BaseException | None = None
         self._configured: list[tuple[str, Any]] = []  # (kind, entity) made by configure(), destroyed on cleanup
         self._subscriptions_active: list[Any] = []  # made by activate(), destroyed on deactivate
@@ -149,7 +151,12 @@ class ManagedNode(LifecycleNode):
                 self.refused_inactive += 1
                 res.success, res.message = False, self.not_serving()
                 return res
-            return callback(req, res)
+            try:
+                return callback(req, res)
+            except Exception as exc:  # noqa: BLE001 - a bug answers this request with its reason, the node lives
+                self.callback_failure(f"service {name}", exc)
+                res.success, res.message = False, f"internal error: {type(exc).__name__}: {exc}"
+                return res
 
         srv = self.create_service(srv_type, name, guarded, **kwargs)
         self._configured.append(("service", srv))
@@ -160,7 +167,10 @@ class ManagedNode(LifecycleNode):
         @functools.wraps(callback)
         def guarded():
             if self.is_active:
-                callback()
+                try:
+                    callback()
+                except Exception as exc:  # noqa: BLE001 - one failed tick must not stop the timer or the node
+                    self.callback_failure("timer", exc)
 
         timer = self.create_timer(period, guarded, **kwargs)
         self._configured.append(("timer", timer))
@@ -186,9 +196,24 @@ class ManagedNode(LifecycleNode):
 
     def active_subscription(self, msg_type, topic: str, callback: Callable, qos, **kwargs) -> Any:
         """A subscription from activate to deactivate (latched topics are delivered again on activation)."""
-        sub = self.create_subscription(msg_type, topic, callback, qos, **kwargs)
+        @functools.wraps(callback)
+        def guarded(msg):
+            try:
+                callback(msg)
+            except Exception as exc:  # noqa: BLE001 - one bad message is dropped with its reason, the node lives
+                self.callback_failure(f"subscription {topic}", exc)
+
+        sub = self.create_subscription(msg_type, topic, guarded, qos, **kwargs)
         self._subscriptions_active.append(sub)
         return sub
+
+    def callback_failure(self, where: str, exc: BaseException) -> None:
+        """Log a callback's unexpected exception with its traceback; counted on /diagnostics (callback_errors)."""
+        import traceback
+
+        self.callback_errors += 1
+        self.get_logger().error(f"{where} failed: {type(exc).__name__}: {exc}\n"
+                                + "".join(traceback.format_exception(exc)).rstrip())
 
     def _destroy_subscriptions(self) -> None:
         subs, self._subscriptions_active = self._subscriptions_active, []

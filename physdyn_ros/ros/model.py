@@ -14,6 +14,24 @@ class ModelLoadError(RuntimeError):
     """The checkpoint cannot be used; the node must not start."""
 
 
+def check_device(device: str) -> None:
+    """ModelLoadError unless torch can use `device` here (a CUDA index this machine does not have, a typo)."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise ModelLoadError(f"device {device!r} is not a torch device (cpu, cuda, cuda:N): {exc}") from None
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise ModelLoadError(f"device {device!r}: torch sees no CUDA device on this machine (use cpu)")
+        if dev.index is not None and dev.index >= count:
+            raise ModelLoadError(f"device {device!r}: torch sees {count} CUDA device(s), cuda:0-cuda:{count - 1}")
+    elif dev.type != "cpu":
+        raise ModelLoadError(f"device {device!r}: only cpu and cuda devices are supported")
+
+
 def load_predictor(node: Node, model_path: str, device: str, num_threads: int) -> "Predictor":
     """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads) and its warm-up
     roll-outs done before the first request. Raises ModelLoadError with the reason."""
@@ -21,6 +39,7 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int) -
 
     t0 = time.monotonic()
     where = model_path or "the shipped default model"
+    check_device(device)
     try:
         # Explicit threads: torch would otherwise start one per core in every node and oversubscribe the machine.
         predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)))

@@ -1,7 +1,7 @@
 """Declaring node parameters with descriptions and ranges (what `ros2 param describe` shows)."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
                                 SetParametersResult)
@@ -12,29 +12,38 @@ _TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEG
           float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
 
 
-def declare(node: Node, name: str, default: Any, description: str, *, read_only: bool = False,
-            low: float | None = None, high: float | None = None, choices: Sequence[str] | None = None) -> Any:
-    """Declare `name` with `default`, a description and an optional inclusive range or set of values; return
-    its value.
+#: A check of a parameter's value: None when it is valid, else the reason (a sentence naming no parameter).
+Check = Callable[[Any], Optional[str]]
 
-    A value outside [low, high] (from a params file or -p) makes declare raise
-    rclpy.exceptions.InvalidParameterValueException, so a node fails at start with the parameter named; rclpy
-    refuses a later `ros2 param set` out of range with the reason. A string with `choices` is checked the same
-    way: at start (ValueError naming the allowed values) and on every set (refused with the reason, never
-    replaced in silence). Array parameters need a non-empty default (its element type is the parameter's type).
+
+def declare(node: Node, name: str, default: Any, description: str, *, read_only: bool = False,
+            low: float | None = None, high: float | None = None, choices: Sequence[str] | None = None,
+            length: int | None = None, check: Check | None = None) -> Any:
+    """Declare `name` with `default`, a description and optional constraints; return its value.
+
+    Constraints: an inclusive range [low, high] (for an array parameter: of every element), a set of allowed
+    strings (`choices`), an array `length`, and `check`, any further test of the value. Each is enforced when
+    the parameter is declared (the default, a params file, `-p`: the node fails at start with the parameter
+    named) and on every later set (`ros2 param set`, SetParameters: refused with the reason, nothing changes).
+    rclpy itself refuses a value of another type. Array parameters need a non-empty default (its element type
+    is the parameter's type).
     """
     if choices is not None:
         description = f"{description} (one of: {', '.join(choices)})"
+    if length is not None:
+        description = f"{description} ({length} values)"
     desc = ParameterDescriptor(name=name, description=description, read_only=read_only)
-    if isinstance(default, list):
+    is_array = isinstance(default, list)
+    if is_array:
         elem = type(default[0])
         desc.type = {float: ParameterType.PARAMETER_DOUBLE_ARRAY, int: ParameterType.PARAMETER_INTEGER_ARRAY,
                      str: ParameterType.PARAMETER_STRING_ARRAY, bool: ParameterType.PARAMETER_BOOL_ARRAY}[elem]
     else:
         desc.type = _TYPES[type(default)]
-    if low is not None or high is not None:
-        if isinstance(default, bool) or not isinstance(default, (int, float)):
-            raise TypeError(f"a range needs a numeric parameter, {name} is {type(default).__name__}")
+    scalar = default[0] if is_array else default
+    if (low is not None or high is not None) and (isinstance(scalar, bool) or not isinstance(scalar, (int, float))):
+        raise TypeError(f"a range needs a numeric parameter, {name} is {type(default).__name__}")
+    if (low is not None or high is not None) and not is_array:
         if isinstance(default, int):
             desc.integer_range = [IntegerRange(from_value=int(low if low is not None else -2**62),
                                                to_value=int(high if high is not None else 2**62), step=0)]
@@ -43,28 +52,55 @@ def declare(node: Node, name: str, default: Any, description: str, *, read_only:
                 from_value=float(low if low is not None else -1e300),
                 to_value=float(high if high is not None else 1e300),
                 step=0.0)]
-    value = node.declare_parameter(name, default, desc).value
+    checks: list[Check] = []
     if choices is not None:
-        allowed = _choices(node)
-        allowed[name] = tuple(choices)
-        if value not in allowed[name]:
-            raise ValueError(f"parameter {name} must be one of {', '.join(choices)}, got {value!r}")
+        allowed = tuple(choices)
+        checks.append(lambda v: None if v in allowed else f"must be one of {', '.join(allowed)}, got {v!r}")
+    if length is not None:
+        checks.append(lambda v: None if len(v) == length else f"needs {length} values, got {len(v)}: {list(v)}")
+    if is_array and (low is not None or high is not None):
+        checks.append(lambda v: _elements_in_range(v, low, high))
+    if check is not None:
+        checks.append(check)
+    value = node.declare_parameter(name, default, desc).value
+    reason = first_failure(checks, value)
+    if reason is not None:
+        raise ValueError(f"parameter {name} {reason}")
+    _checks(node)[name] = checks  # from now on every set is checked
     return value
 
 
-def _choices(node: Node) -> dict[str, tuple[str, ...]]:
-    """The node's {name: allowed values}; the first call registers the callback that enforces them on set."""
-    registry = getattr(node, "_physdyn_choices", None)
+def first_failure(checks: Sequence[Check], value: Any) -> str | None:
+    """The first reason one of `checks` gives for `value`, or None when all pass."""
+    for c in checks:
+        reason = c(value)
+        if reason is not None:
+            return reason
+    return None
+
+
+def _elements_in_range(values: Sequence[float], low: float | None, high: float | None) -> str | None:
+    for v in values:
+        if (low is not None and v < low) or (high is not None and v > high):
+            lo = "-inf" if low is None else f"{low:g}"
+            hi = "inf" if high is None else f"{high:g}"
+            return f"needs every value in [{lo}, {hi}], got {list(values)}"
+    return None
+
+
+def _checks(node: Node) -> dict[str, list[Check]]:
+    """The node's {name: checks}; the first call registers the callback that enforces them on set."""
+    registry = getattr(node, "_physdyn_checks", None)
     if registry is None:
         registry = {}
-        node._physdyn_choices = registry  # type: ignore[attr-defined]
+        node._physdyn_checks = registry  # type: ignore[attr-defined]
 
-        def check(params: list[Parameter]) -> SetParametersResult:
+        def on_set(params: list[Parameter]) -> SetParametersResult:
             for p in params:
-                if p.name in registry and p.value not in registry[p.name]:
-                    return SetParametersResult(successful=False, reason=f"{p.name} must be one of "
-                                               f"{', '.join(registry[p.name])}, got {p.value!r}")
+                reason = first_failure(registry.get(p.name, ()), p.value)
+                if reason is not None:
+                    return SetParametersResult(successful=False, reason=f"{p.name} {reason}")
             return SetParametersResult(successful=True)
 
-        node.add_on_set_parameters_callback(check)
+        node.add_on_set_parameters_callback(on_set)
     return registry

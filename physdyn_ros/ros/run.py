@@ -1,35 +1,78 @@
 """The one way the suite's nodes run as executables: init, build, spin, clean shutdown, a clear exit code."""
 from __future__ import annotations
 
+import os
+import signal
+import threading
+import traceback
 from typing import Callable
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from ..conventions import PARENT_PID_ENV
+
+#: s between two looks at the parent pid.
+PARENT_POLL = 0.5
+
+
+def watch_parent(name: str, parent: int, stop: threading.Event) -> threading.Thread:
+    """A daemon thread that sends this process SIGINT (the Ctrl-C path: a clean shutdown) once its parent
+    process `parent` is gone, i.e. once it has been re-parented."""
+    def watch() -> None:
+        while not stop.wait(PARENT_POLL):
+            if os.getppid() != parent:
+                rclpy.logging.get_logger(name).error(
+                    f"parent process {parent} (physdyn up) is gone: shutting down")
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+
+    thread = threading.Thread(target=watch, name="parent-watch", daemon=True)
+    thread.start()
+    return thread
+
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None, threads: int = 0) -> int:
     """Spin the node `make_node()` until Ctrl-C / shutdown (0), on a MultiThreadedExecutor when threads > 0.
 
-    A node that cannot start (e.g. its model cannot be loaded) logs why as `name` and returns 1.
+    A node that cannot start (e.g. its model cannot be loaded) logs "cannot start: <why>" as `name` and returns
+    1. Once running, an exception that escapes a callback is logged with its traceback and the node spins on: no
+    input stops it. With PHYSDYN_PARENT_PID set, the node stops when that process is gone.
     """
     rclpy.init(args=args)
+    log = rclpy.logging.get_logger(name)
+    stop = threading.Event()
+    parent = os.environ.get(PARENT_PID_ENV, "").strip()
+    if parent.isdigit():
+        if os.getppid() != int(parent):
+            log.error(f"parent process {parent} (physdyn up) is gone before the start: not starting")
+            rclpy.try_shutdown()
+            return 1
+        watch_parent(name, int(parent), stop)
     node = None
     try:
-        node = make_node()
-        if threads > 0:
-            executor = MultiThreadedExecutor(num_threads=threads)
-            executor.add_node(node)
-            executor.spin()
-        else:
-            rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:  # noqa: BLE001 - a node that cannot start says why and exits non-zero
-        rclpy.logging.get_logger(name).fatal(f"cannot start: {exc}")
-        return 1
+        try:
+            node = make_node()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            return 0
+        except Exception as exc:  # noqa: BLE001 - a node that cannot start says why and exits non-zero
+            log.fatal(f"cannot start: {exc}")
+            return 1
+        executor = MultiThreadedExecutor(num_threads=threads) if threads > 0 else rclpy.get_global_executor()
+        executor.add_node(node)
+        while rclpy.ok():
+            try:
+                executor.spin()
+                break
+            except (KeyboardInterrupt, ExternalShutdownException):
+                break
+            except Exception as exc:  # noqa: BLE001 - a callback's bug costs that callback, not the node
+                log.error(f"a callback failed, the node goes on: {type(exc).__name__}: {exc}\n"
+                          + "".join(traceback.format_exception(exc)).rstrip())
+        return 0
     finally:
+        stop.set()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0

@@ -1,13 +1,18 @@
-"""Warnings throttled per reason: rclpy's `throttle_duration_sec` throttles per call site, so one noisy reason
-hid every other one (two different bad clouds 1.5 s apart: the second was dropped without a word)."""
+"""Messages throttled per reason, at a fixed severity.
+
+rclpy's `throttle_duration_sec` throttles per call site, so one noisy reason would hide every other one; this
+class throttles per kind of reason instead. rclpy also binds one severity to each call site (a second severity
+there raises "Logger severity cannot be changed between calls"), so every severity is logged from its own line.
+"""
 from __future__ import annotations
 
 import re
 import time
-from typing import Callable
+from typing import Any, Callable
 
 #: Numbers in a reason (point counts, ages, values) do not make it another reason.
 _NUMBER = re.compile(r"[-+]?\d+(\.\d*)?(e[-+]?\d+)?", re.IGNORECASE)
+SEVERITIES = ("debug", "info", "warning", "error", "fatal")
 
 
 def reason_key(reason: str) -> str:
@@ -15,12 +20,34 @@ def reason_key(reason: str) -> str:
     return _NUMBER.sub("#", reason)
 
 
-class ReasonThrottle:
-    """Log each kind of reason at most once per `period` seconds; says how many of that kind were held back."""
+def log_at(logger: Any, severity: str, text: str) -> None:
+    """Log `text` at `severity` on an rclpy logger, one call site per severity (see the module docstring)."""
+    if severity == "debug":
+        logger.debug(text)
+    elif severity == "info":
+        logger.info(text)
+    elif severity == "warning":
+        logger.warning(text)
+    elif severity == "error":
+        logger.error(text)
+    elif severity == "fatal":
+        logger.fatal(text)
+    else:
+        raise ValueError(f"severity must be one of {', '.join(SEVERITIES)}, got {severity!r}")
 
-    def __init__(self, log: Callable[[str], None], period: float = 2.0,
+
+class ReasonThrottle:
+    """Log each kind of reason at most once per `period` seconds; says how many of that kind were held back.
+
+    `logger` is an rclpy logger (or anything with debug/info/warning/error/fatal methods) and `severity` one of
+    SEVERITIES; several throttles of different severities may share one logger.
+    """
+
+    def __init__(self, logger: Any, severity: str, period: float = 2.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.log, self.period, self.clock = log, float(period), clock
+        if severity not in SEVERITIES:
+            raise ValueError(f"severity must be one of {', '.join(SEVERITIES)}, got {severity!r}")
+        self.logger, self.severity, self.period, self.clock = logger, severity, float(period), clock
         self._last: dict[str, float] = {}
         self._held: dict[str, int] = {}
 
@@ -33,5 +60,5 @@ class ReasonThrottle:
             return False
         held = self._held.pop(key, 0)
         self._last[key] = now
-        self.log(text + (f" ({held} more like it since the last one)" if held else ""))
+        log_at(self.logger, self.severity, text + (f" ({held} more like it since the last one)" if held else ""))
         return True
