@@ -44,7 +44,9 @@ from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy,
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
+from ..ros import plan_push
 from ..ros.params import declare
+from ..ros.requests import MAX_DENSITY, RequestError, check_pose_on_cloud, observed_steps, ordered_bounds
 from ..ros.qos import FEATURE_QOS, LATCHED, STATE_QOS
 from ..ros.run import run_node
 from ..ros.throttle import ReasonThrottle
@@ -57,22 +59,10 @@ POSE_SOURCES = ("object_state", "shape_feature")
 #: A stamp this close to another counts as the same instant (float round-trips of stamps).
 SAME_INSTANT_NS = 1_000_000
 NS = 1e-9
-#: kg/m^3: the densities a pushed object can have (expanded polystyrene ~10, tungsten ~19,300); a request's
-#: mass is checked against the cloud's hull volume with them.
-MIN_DENSITY, MAX_DENSITY = 5.0, 25_000.0
 #: Stamps further apart than this (s) are not of one session: one is unset or from another clock.
 ABSURD_GAP = 86_400.0
-#: A request's cloud and initial pose describe one object: its centre may lie at most this far (m) outside
-#: the cloud's bounding sphere (a partial view's centroid lies a few cm from the centre of mass).
-POSE_CLOUD_SLACK = 0.1
 #: m/s: the largest vertical speed of the training pushes (3.5 m/s at 10 degrees above the horizontal).
 MAX_VERTICAL_SPEED = 0.6
-#: The finest position (m) and yaw (rad) tolerance a plan_push request may ask for.
-MIN_POSITION_TOLERANCE, MIN_YAW_TOLERANCE = 1e-4, 1e-4
-
-
-class RequestError(ValueError):
-    """A bad input: the reason is logged or returned to the caller; nothing is published."""
 
 
 @dataclass
@@ -515,24 +505,9 @@ class PredictorNode(ManagedNode):
 
     def observed(self, states: list[ObjectState]):
         """Observed ObjectStates of frames 1..K after the push -> the Predictor's `observed` argument."""
-        from ..predictor import Observed
-
-        pos, quat, lin, ang = [], [], [], []
-        for s in states:
-            self.check_frame(s.header.frame_id, "observed state")
-            try:
-                p, q = pose_to_numpy(s.pose)
-            except ValueError as exc:
-                raise RequestError(f"observed state: {exc}") from None
-            v, w = twist_to_numpy(s.twist)
-            if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
-                raise RequestError("observed state velocity is not finite")
-            pos.append(p)
-            quat.append(q)
-            lin.append(v)
-            ang.append(w)
-        return Observed(positions=np.array(pos).reshape(-1, 3), orientations=np.array(quat).reshape(-1, 4),
-                        lin_vels=np.array(lin).reshape(-1, 3), ang_vels=np.array(ang).reshape(-1, 3))
+        for st in states:
+            self.check_frame(st.header.frame_id, "observed state")
+        return observed_steps(states)
 
     # --------------------------------------------------------------------------------------- service helpers
     def request_shape(self, req, stamp_ns: int | None):
@@ -607,142 +582,14 @@ class PredictorNode(ManagedNode):
         res.message = f"{horizon} steps in {self._latency_ms[-1]:.1f} ms"
         return res
 
-
-    # -------------------------------------------------------------------------------------------- plan_push
-    def planner_config(self, req: PlanPush.Request):
-        from ..planning import PlannerConfig, TableBounds
-
-        bounds = list(self._param("plan_table_bounds"))
-        for name in ("max_speed", "time_budget", "mass", "position_tolerance", "yaw_tolerance"):
-            v = float(getattr(req, name))
-            if not np.isfinite(v) or v < 0:
-                raise RequestError(f"{name} must be finite and >= 0 (0 = the node's default), got {v}")
-        if 0 < req.position_tolerance < MIN_POSITION_TOLERANCE:
-            raise RequestError(f"position_tolerance {req.position_tolerance:g} m is below {MIN_POSITION_TOLERANCE:g} "
-                               "m: no push ends that exactly")
-        if 0 < req.yaw_tolerance < MIN_YAW_TOLERANCE:
-            raise RequestError(f"yaw_tolerance {req.yaw_tolerance:g} rad is below {MIN_YAW_TOLERANCE:g} rad: no push "
-                               "ends that exactly")
-        vmax = float(self._param("max_linear_speed"))
-        max_speed = req.max_speed or float(self._param("plan_max_speed"))
-        if max_speed > vmax:
-            raise RequestError(f"max_speed {max_speed:g} m/s exceeds the node's max_linear_speed {vmax:g} m/s")
-        if req.time_budget > 30.0:
-            raise RequestError(f"time_budget {req.time_budget:g} s exceeds 30 s")
-        return PlannerConfig(max_speed=max_speed,
-                             time_budget=req.time_budget or float(self._param("plan_time_budget")),
-                             max_topple_probability=float(self._param("plan_max_topple_probability")),
-                             density=float(self._param("plan_density")) or DEFAULT_DENSITY,
-                             min_contact_height=float(self._param("plan_min_contact_height")),
-                             max_contact_height=float(self._param("plan_max_contact_height")),
-                             table=TableBounds(*bounds) if bounds else None)
-
-    def plan_start(self, req: PlanPush.Request, object_id: str):
-        from ..planning import Pose2D, yaw_of
-
-        if req.start_from_object_state:
-            with self._lock:
-                states = list(self._states.get(object_id, ()))
-            if not states:
-                raise RequestError(f"start_from_object_state: no object_state of '{object_id}' received")
-            self.check_frame(states[-1].header.frame_id, "object_state")
-            pose_msg = states[-1].pose
-        else:
-            pose_msg = req.start_pose
-        try:
-            p, q = pose_to_numpy(pose_msg, zero_is_identity=True)
-        except ValueError as exc:
-            raise RequestError(f"start pose: {exc}") from None
-        return Pose2D(float(p[0]), float(p[1]), float(yaw_of(q))), (p, q)
+    def latest_state(self, object_id: str) -> ObjectState | None:
+        """The newest object_state received of object_id, or None."""
+        with self._lock:
+            states = self._states.get(object_id)
+            return states[-1] if states else None
 
     def _on_plan(self, req: PlanPush.Request, res: PlanPush.Response) -> PlanPush.Response:
-        from ..planning import Goal, Pose2D, yaw_of
-        from ..ros.convert import pose
-
-        try:
-            self.check_frame(req.header.frame_id, "request header")
-            cfg = self.planner_config(req)
-            res.reach = float(cfg.reach())  # a refusal carries it too: push_to_goal splits a far goal by it
-            try:
-                gp, gq = pose_to_numpy(req.goal_pose, zero_is_identity=True)
-            except ValueError as exc:
-                raise RequestError(f"goal_pose: {exc}") from None
-            goal = Goal(Pose2D(float(gp[0]), float(gp[1]), float(yaw_of(gq))),
-                        req.position_tolerance or float(self._param("plan_position_tolerance")),
-                        req.yaw_tolerance or float(self._param("plan_yaw_tolerance")))
-            object_id, cloud, shape = self.request_shape(req, None)
-            start, start_pose = self.plan_start(req, object_id)
-            if cloud is None:  # the feature's own points, when perception sent them: contacts on the surface
-                feat = self.select_feature(object_id, None)
-                cloud = self.feature_cloud(feat)
-                if cloud is not None:
-                    cloud = self.repose(cloud, object_id, time_to_ns(feat.header.stamp), start_pose)
-            if req.mass > 0:
-                check_mass(req.mass, cloud if cloud is not None else shape)
-            plan = self.planner.plan(shape if shape is not None else cloud, start, goal, cloud=cloud,
-                                     mass=req.mass or None, config=cfg)
-        except Exception as exc:  # noqa: BLE001 - answer with the reason, never crash on a request
-            return self.refuse("plan_push", res, exc)
-        stamp = req.header.stamp if time_to_ns(req.header.stamp) > 0 else self.get_clock().now().to_msg()
-        res.success, res.message = True, plan.message
-        res.push_twist.linear.x, res.push_twist.linear.y, res.push_twist.linear.z = map(float, plan.lin_vel)
-        res.push_twist.angular.x, res.push_twist.angular.y, res.push_twist.angular.z = map(float, plan.ang_vel)
-        res.impulse.x, res.impulse.y, res.impulse.z = map(float, plan.impulse)
-        res.contact_point.x, res.contact_point.y, res.contact_point.z = map(float, plan.contact_point)
-        res.mass = float(plan.mass)
-        fy = plan.final_pose.yaw
-        res.predicted_final_pose = pose(plan.final_position, yaw_quaternion(fy))
-        res.predicted_position_error = float(plan.position_error)
-        res.predicted_yaw_error = float(plan.yaw_error)
-        res.within_tolerance = bool(plan.within_tolerance)
-        res.planning_time = float(plan.planning_time)
-        res.trajectory = trajectory_to_msg(plan.trajectory, self.table_frame, stamp, object_id, self.model_id)
-        # the plan's risk: the model's, the tipping estimate's and the worst of the robustness check
-        res.topple_probability = float(max(res.trajectory.topple_probability, plan.topple_probability,
-                                           plan.robust_topple_probability))
-        self.get_logger().info(f"plan_push '{object_id}': {plan.message}")
-        return res
-
-
-def ordered_bounds(bounds) -> str | None:
-    """Parameter check of plan_table_bounds: x_min < x_max and y_min < y_max, all finite."""
-    if len(bounds) == 4 and not (np.all(np.isfinite(bounds)) and bounds[0] < bounds[1] and bounds[2] < bounds[3]):
-        return f"must be finite [x_min, x_max, y_min, y_max] with x_min < x_max and y_min < y_max, got {list(bounds)}"
-    return None
-
-
-def check_pose_on_cloud(position: np.ndarray, cloud: np.ndarray) -> None:
-    """RequestError unless the initial position lies within the cloud's bounding sphere (plus slack)."""
-    centre = cloud.mean(axis=0)
-    radius = float(np.linalg.norm(cloud - centre, axis=1).max())
-    gap = float(np.linalg.norm(np.asarray(position, dtype=np.float64) - centre))
-    if gap > radius + POSE_CLOUD_SLACK:
-        raise RequestError(f"initial_pose ({position[0]:.3f}, {position[1]:.3f}, {position[2]:.3f}) is {gap:.2f} m "
-                           f"from the cloud's centre ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}), outside "
-                           f"the object (radius {radius:.2f} m): the cloud and the pose must describe the same "
-                           "object in the table frame")
-
-
-def check_mass(mass: float, shape) -> None:
-    """RequestError when `mass` gives the object an impossible density (its hull volume from the cloud, or the
-    box of the shape code's half extents as an upper bound)."""
-    from ..shapes.core import convex_hull, mass_properties
-
-    if isinstance(shape, np.ndarray):
-        try:
-            v, f = convex_hull(shape.astype(np.float64))
-            volume = float(mass_properties(v, f, density=1.0).volume)
-        except Exception as exc:  # noqa: BLE001 - a flat or degenerate cloud has no volume to check against
-            raise RequestError(f"cloud has no usable convex hull to check the mass against: {exc}") from None
-        what, low = "hull volume", MIN_DENSITY
-    else:
-        volume = float(np.prod(2.0 * np.asarray(shape.half_extents, dtype=np.float64)))
-        # the box holds the solid with room to spare: its density is a lower bound of the object's
-        what, low = "bounding-box volume", MIN_DENSITY / 10.0
-    density = mass / max(volume, 1e-12)
-    if not low <= density <= MAX_DENSITY:
-        raise RequestError(f"mass {mass:g} kg is not plausible for this object: its {what} {volume * 1e3:.3g} L "
-                           f"gives a density of {density:.3g} kg/m^3 (expected {low:g}-{MAX_DENSITY:g})")
+        return plan_push.answer(self, req, res)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,15 +1,12 @@
 """Simulated table: objects in pybullet (the same core as data generation), spawned and pushed through services.
 
-Several objects, each under an id: the `object_id` parameter's object and the `objects` parameter's spawn at
-start, `spawn_object` adds one (or replaces the one of that id, or removes it with category "remove"), `push`
-pushes the one its object_id names. All objects share one world: a pushed object can hit the others.
-Publishes the cloud of every object on `cloud`, one true state per object on `object_state` / `odom` (the object
-id in object_id / child_frame_id), the current object's (the last spawned or pushed) on `object_pose`, and the
-pushed object's velocities right after a push on `initial_twist`. During a push the pushed object's state is
-published every simulated frame, another object's while it moves (and once as it stops), the resting ones at
-`rate`; the push ends when every object rests. Every pybullet call runs in one
-MutuallyExclusiveCallbackGroup (the node's default group, which also runs the lifecycle transitions), so one thread
-at a time touches the simulator (pybullet clients are not thread-safe).
+Several objects, each under an id: the `object_id` and `objects` parameters' objects spawn at start,
+`spawn_object` adds one (or replaces the one of that id, or removes it with category "remove"), `push` pushes the
+one its object_id names; all share one world. Publishes every object's cloud on `cloud`, one true state per object
+on `object_state` / `odom`, the current object's on `object_pose`, the pushed object's velocities right after a
+push on `initial_twist`. During a push the pushed object's state is published every simulated frame, another's
+while it moves, the resting ones at `rate`; the push ends when every object rests. Every pybullet call runs in the
+node's default (mutually exclusive) callback group: pybullet clients are not thread-safe.
 
 A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the pybullet simulator is created and the start
 objects spawned on configure, and closed on cleanup; publishers and services exist from configure to cleanup; the
@@ -21,14 +18,11 @@ The cloud is in the table frame, or (cloud_frame: camera) in the simulated camer
 forward, x right, y down) named camera_frame, whose pose is published on /tf_static when tf2_msgs is importable
 (a ROS 2 install) and logged at start as the perception node's sensor_frame / sensor_transform parameters.
 
-Time: messages carry the simulation's time. It starts at the node clock and, while no push runs, follows it;
-during a push, frame k is stamped t0 + k * DT exactly. With real_time_factor 1 that is the wall clock; with
-real_time_factor 0 pushes are simulated as fast as possible, so the stamps run ahead of the wall clock (and stay
-ahead by the simulated time gained; set publish_clock and use_sim_time to share this clock with other nodes).
+Time: messages carry the simulation's time: the node clock while no push runs, t0 + k * DT for frame k of a push
+(at real_time_factor 0 the stamps run ahead of the wall clock; publish_clock and use_sim_time share this clock).
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 from dataclasses import dataclass
@@ -44,6 +38,8 @@ from std_srvs.srv import Trigger
 from ..conventions import DT, TABLE_FRAME
 from ..msg import ObjectState
 from ..perception.frames import RigidTransform, camera_optical_pose
+from ..sim.table import (MAX_CONTACT_GAP, MAX_SPAWN_DISTANCE, check_size, check_spawn, parse_object_entry,
+                         surface_gap)
 from ..sim.camera import MAX_PIXELS as MAX_CAMERA_PIXELS, MIN_PIXELS as MIN_CAMERA_PIXELS, CameraSpec, DepthCamera
 from ..ros.cloud import xyz_to_cloud
 from ..ros.convert import ns_to_time, quat_to_matrix, twist, vector3, xyz_to_numpy
@@ -56,22 +52,12 @@ from ..ros.trajectory import object_state
 from ..srv import PushObject, SpawnObject
 
 DT_NS = int(round(DT * 1e9))
-#: m, the size range of a spawned object along each axis: what a robot pushes on a table (scale 1000 made a
-#: box of 494,000 t).
-MIN_OBJECT_SIZE, MAX_OBJECT_SIZE = 0.01, 1.0
 CLOUD_FRAMES = ("table", "camera")
 #: cloud_source values and collision values.
 CLOUD_SOURCES = ("surface", "camera")
 COLLISIONS = ("auto", "hull")
-#: m: objects are spawned at most this far from the table frame's origin along x and y.
-MAX_SPAWN_DISTANCE = 10.0
-#: m: a push's contact point may lie at most this far outside the object's hull (a pusher's tip, the hull's
-#: approximation of a curved surface).
-MAX_CONTACT_GAP = 0.02
 #: SpawnObject.category that removes the object named object_id instead of spawning one.
 REMOVE = "remove"
-#: Keys of an `objects` parameter entry ("id=can category=cylinder x=0.25 ..."); id is required.
-OBJECT_KEYS = ("id", "category", "shape_seed", "mesh_path", "scale", "x", "y", "yaw", "friction")
 
 
 @dataclass
@@ -80,26 +66,6 @@ class SimObject:
 
     spawn_pose: tuple[float, float, float]  # x, y (m), yaw (rad): where reset puts it back
     cloud_obj: np.ndarray  # surface samples in the object frame (cloud_source surface)
-
-
-def parse_object_entry(entry: str, defaults: dict) -> dict:
-    """One `objects` parameter entry, "id=NAME [category=C] [shape_seed=N] [mesh_path=P] [scale=SX,SY,SZ] [x=X]
-    [y=Y] [yaw=YAW] [friction=MU]", as keyword values (missing keys from `defaults`); ValueError naming the entry."""
-    out = dict(defaults)
-    for token in entry.split():
-        key, sep, value = token.partition("=")
-        if not sep or key not in OBJECT_KEYS:
-            keys = ", ".join(k + "=" for k in OBJECT_KEYS)
-            raise ValueError(f"objects entry {entry!r}: {token!r} is not one of {keys}")
-        try:
-            out[key] = (value if key in ("id", "category", "mesh_path") else
-                        int(value) if key == "shape_seed" else
-                        [float(v) for v in value.split(",")] if key == "scale" else float(value))
-        except ValueError:
-            raise ValueError(f"objects entry {entry!r}: {key}={value!r} is not a number") from None
-    if not out.get("id"):
-        raise ValueError(f"objects entry {entry!r} has no id=NAME")
-    return out
 
 
 class SimNode(ManagedNode):
@@ -308,23 +274,9 @@ class SimNode(ManagedNode):
         """Add the object `object_id` (empty: the object_id parameter), or replace the object of that id; raises
         ValueError on bad input or a pose that overlaps another object (the objects are kept as they were then).
         A running push ends first and every object is held still."""
-        scale = np.asarray(scale, dtype=np.float64).reshape(-1)
-        if scale.size != 3 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
-            raise ValueError(f"scale must be 3 positive numbers, got {scale.tolist()}")
-        x, y, yaw = (float(v) for v in spawn_pose)
-        if not all(math.isfinite(v) for v in (x, y, yaw)):
-            raise ValueError("spawn pose must be finite")
-        if max(abs(x), abs(y)) > MAX_SPAWN_DISTANCE:
-            raise ValueError(f"spawn position ({x:g}, {y:g}) m is more than {MAX_SPAWN_DISTANCE:g} m from the table "
-                             "frame's origin")
-        if not 0.0 <= friction <= 10.0:
-            raise ValueError(f"friction must be in [0, 10], got {friction}")
+        scale, (x, y, yaw) = check_spawn(scale, spawn_pose, friction)
         shape = self.load_shape(category, mesh_path, shape_seed)
-        size = np.asarray(shape.extents, dtype=np.float64) * scale
-        if size.max() > MAX_OBJECT_SIZE or size.min() < MIN_OBJECT_SIZE:
-            raise ValueError(f"scale {scale.tolist()} makes {shape.name} {size[0]:.3g} x {size[1]:.3g} x "
-                             f"{size[2]:.3g} m; a tabletop object must measure {MIN_OBJECT_SIZE:g}-"
-                             f"{MAX_OBJECT_SIZE:g} m along each axis")
+        check_size(shape, scale)
         oid = object_id or self.default_object_id
         self._hold_still()
         self.sim.spawn(shape, scale=scale, xy=(x, y), yaw=yaw, friction=friction, object_id=oid)
@@ -349,17 +301,6 @@ class SimNode(ManagedNode):
         del self.objects[object_id]
         if self.object_id == object_id:
             self.object_id = self.sim.ids[-1] if self.sim.ids else self.default_object_id
-
-    def surface_gap(self, object_id: str, point: np.ndarray) -> float:
-        """How far (m) `point` (table frame) lies outside the object's convex hull; 0 on or inside it. The
-        largest signed distance to the hull's face planes: exact off a face, a lower bound off an edge."""
-        from scipy.spatial import ConvexHull
-
-        b = self.sim.get(object_id)
-        pos, q, _, _ = self.sim.state(object_id)
-        local = quat_to_matrix(q).T @ (np.asarray(point, dtype=np.float64) - pos)
-        hull = ConvexHull(np.asarray(b.shape.hull()[0], dtype=np.float64) * b.scale)
-        return max(0.0, float(np.max(hull.equations[:, :3] @ local + hull.equations[:, 3])))
 
     @property
     def spawn_pose(self) -> tuple[float, float, float]:
@@ -506,7 +447,7 @@ class SimNode(ManagedNode):
                 return False, "push rejected: the impulse is zero"
             if not np.any(point):
                 point = pos
-            gap = self.surface_gap(oid, point)
+            gap = surface_gap(self.sim, oid, point)
             if gap > MAX_CONTACT_GAP:
                 return False, (f"push rejected: point {[round(v, 4) for v in point.tolist()]} is {gap:.3f} m outside "
                                f"the surface of {oid!r} (at most {MAX_CONTACT_GAP:g} m: the point is where the "

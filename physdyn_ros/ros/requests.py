@@ -1,0 +1,81 @@
+"""Checks of the predictor's requests that need no node state: the reason of a refusal, as a RequestError."""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .convert import pose_to_numpy, twist_to_numpy
+
+#: kg/m^3: the densities a pushed object can have (expanded polystyrene ~10, tungsten ~19,300); a request's
+#: mass is checked against the cloud's hull volume with them.
+MIN_DENSITY, MAX_DENSITY = 5.0, 25_000.0
+#: A request's cloud and initial pose describe one object: its centre may lie at most this far (m) outside
+#: the cloud's bounding sphere (a partial view's centroid lies a few cm from the centre of mass).
+POSE_CLOUD_SLACK = 0.1
+
+
+class RequestError(ValueError):
+    """A bad input: the reason is logged or returned to the caller; nothing is published."""
+
+
+def ordered_bounds(bounds) -> str | None:
+    """Parameter check of plan_table_bounds: x_min < x_max and y_min < y_max, all finite."""
+    if len(bounds) == 4 and not (np.all(np.isfinite(bounds)) and bounds[0] < bounds[1] and bounds[2] < bounds[3]):
+        return f"must be finite [x_min, x_max, y_min, y_max] with x_min < x_max and y_min < y_max, got {list(bounds)}"
+    return None
+
+
+def check_pose_on_cloud(position: np.ndarray, cloud: np.ndarray) -> None:
+    """RequestError unless the initial position lies within the cloud's bounding sphere (plus slack)."""
+    centre = cloud.mean(axis=0)
+    radius = float(np.linalg.norm(cloud - centre, axis=1).max())
+    gap = float(np.linalg.norm(np.asarray(position, dtype=np.float64) - centre))
+    if gap > radius + POSE_CLOUD_SLACK:
+        raise RequestError(f"initial_pose ({position[0]:.3f}, {position[1]:.3f}, {position[2]:.3f}) is {gap:.2f} m "
+                           f"from the cloud's centre ({centre[0]:.3f}, {centre[1]:.3f}, {centre[2]:.3f}), outside "
+                           f"the object (radius {radius:.2f} m): the cloud and the pose must describe the same "
+                           "object in the table frame")
+
+
+def check_mass(mass: float, shape) -> None:
+    """RequestError when `mass` gives the object an impossible density (its hull volume from the cloud, or the
+    box of the shape code's half extents as an upper bound)."""
+    from ..shapes.core import convex_hull, mass_properties
+
+    if isinstance(shape, np.ndarray):
+        try:
+            v, f = convex_hull(shape.astype(np.float64))
+            volume = float(mass_properties(v, f, density=1.0).volume)
+        except Exception as exc:  # noqa: BLE001 - a flat or degenerate cloud has no volume to check against
+            raise RequestError(f"cloud has no usable convex hull to check the mass against: {exc}") from None
+        what, low = "hull volume", MIN_DENSITY
+    else:
+        volume = float(np.prod(2.0 * np.asarray(shape.half_extents, dtype=np.float64)))
+        # the box holds the solid with room to spare: its density is a lower bound of the object's
+        what, low = "bounding-box volume", MIN_DENSITY / 10.0
+    density = mass / max(volume, 1e-12)
+    if not low <= density <= MAX_DENSITY:
+        raise RequestError(f"mass {mass:g} kg is not plausible for this object: its {what} {volume * 1e3:.3g} L "
+                           f"gives a density of {density:.3g} kg/m^3 (expected {low:g}-{MAX_DENSITY:g})")
+
+
+def observed_steps(states: Sequence[Any]):
+    """Observed ObjectStates of frames 1..K after a push -> the Predictor's `observed` argument."""
+    from ..predictor import Observed
+
+    pos, quat, lin, ang = [], [], [], []
+    for s in states:
+        try:
+            p, q = pose_to_numpy(s.pose)
+        except ValueError as exc:
+            raise RequestError(f"observed state: {exc}") from None
+        v, w = twist_to_numpy(s.twist)
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise RequestError("observed state velocity is not finite")
+        pos.append(p)
+        quat.append(q)
+        lin.append(v)
+        ang.append(w)
+    return Observed(positions=np.array(pos).reshape(-1, 3), orientations=np.array(quat).reshape(-1, 4),
+                    lin_vels=np.array(lin).reshape(-1, 3), ang_vels=np.array(ang).reshape(-1, 3))
