@@ -8,11 +8,9 @@ push on `initial_twist`. During a push the pushed object's state is published ev
 while it moves, the resting ones at `rate`; the push ends when every object rests. Every pybullet call runs in the
 node's default (mutually exclusive) callback group: pybullet clients are not thread-safe.
 
-A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the pybullet simulator is created and the start
-objects spawned on configure, and closed on cleanup; publishers and services exist from configure to cleanup; the
-simulation publishes (state, cloud, clock) and pushes only while active, and a service call otherwise answers
-success=false with the lifecycle state. Deactivating during a push ends it and holds the objects still.
-With `autostart` (default) it configures and activates itself at start.
+A managed (lifecycle) node (physdyn_ros/ros/lifecycle.py): the simulator and the start objects are made on
+configure, closed on cleanup; it publishes and pushes only while active (services otherwise answer success=false
+with the state); deactivating during a push holds the objects still. `autostart` configures and activates it.
 
 The cloud is in the table frame, or (cloud_frame: camera) in the simulated camera's optical frame (REP 103: z
 forward, x right, y down) named camera_frame, whose pose is published on /tf_static when tf2_msgs is importable
