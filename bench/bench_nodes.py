@@ -281,7 +281,7 @@ def main() -> int:
 
         def call(client, req, timeout=30.0):
             # wait on an Event the future sets when the executor thread completes it: a polling loop (sleep 0.2 ms)
-            # woke 5,000 times a second and took CPU and the GIL from the spinning thread and, on 2 cores, the node
+            # would wake 5,000 times a second, taking CPU and the GIL from the spinning thread and, on 2 cores, the node
             done = threading.Event()
             fut = client.call_async(req)
             fut.add_done_callback(lambda _: done.set())

@@ -3,7 +3,7 @@
 
     .venv/bin/python bench/bench_planning.py [--model PATH] [--trials 42] [--max-pushes 3] [--budget 0.2]
 
-Trials cycle through three groups of shapes no model was trained on (issue 16):
+Trials cycle through three groups of shapes no model was trained on:
   procedural: the paper's six categories and the trained families (physdyn_ros.shapes.families) at shape
               indices >= 9000 (training used 0-149);
   held_out:   the families kept out of training altogether (ring, dumbbell, legged);

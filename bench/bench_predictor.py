@@ -20,7 +20,7 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
 * peak: a plain 1024^3 fp32 matmul (torch) on one thread, best of 3 just before and 3 just after each round's
   batch; each round's fraction of peak uses that round's peak, and the median over rounds is reported.
 * msg_build_ms: physdyn_ros.ros.trajectory_to_msg of a 60-step trajectory (61 states), p50.
-Goals (issue 13): batch-1 roll-out >= 5x faster than a pybullet push; batched >= 60 % of the fp32 matmul peak and
+Goals: batch-1 roll-out >= 5x faster than a pybullet push; batched >= 60 % of the fp32 matmul peak and
 >= 60x pybullet per core.
 The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms (wall),
 pybullet_push_cpu_ms, b1_speedup_vs_pybullet, batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core,

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The paper's Table 1, Combined row, against a checkpoint on our Combined test split (issue 11).
+"""The paper's Table 1, Combined row, against a checkpoint on our Combined test split.
 
     .venv/bin/python bench/paper_table.py [--checkpoint CKPT] [--data data/combined] [--max-sequences 600]
 

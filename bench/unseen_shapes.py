@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Shapes never seen in training (issue 11): a checkpoint against the baselines, per group of test shapes.
+"""Shapes never seen in training: a checkpoint against the baselines, per group of test shapes.
 
     .venv/bin/python bench/unseen_shapes.py --checkpoint CKPT [--data data/broad] [--pybullet-data data/pybullet_test]
         [--max-sequences 400] [--out runs/unseen_bench]

@@ -155,7 +155,7 @@ def test_max_bytes_stops_the_recorder_cleanly(rclpy_init, tmp_path):
 
 
 def test_recorder_publishes_diagnostics(rclpy_init, tmp_path):
-    """Issue 15.2: the recorder reports on /diagnostics what it records and receives."""
+    """The recorder reports on /diagnostics what it records and receives."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     node = rclpy_init.create_node("bag_pub_diag")

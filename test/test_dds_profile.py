@@ -1,4 +1,4 @@
-"""Dense clouds between processes (issue 12.4): the shipped Fast DDS profile, and who uses it by default."""
+"""Dense clouds between processes: the shipped Fast DDS profile, and who uses it by default."""
 from __future__ import annotations
 
 import ast

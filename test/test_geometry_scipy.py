@@ -1,4 +1,4 @@
-"""Issue 15.7: the rotation helpers run on scipy.spatial.transform (Rotation, Slerp) and give the old results.
+"""The rotation helpers run on scipy.spatial.transform (Rotation, Slerp) and give the hand-written results.
 
 The hand-written implementations they replaced are frozen below (`Old*`, copied verbatim from geometry.py,
 sim/simulator.py, ros/convert.py, bag/pushes.py and predictor.py before the change); the new functions must
@@ -21,7 +21,7 @@ TOL = 1e-9
 
 # ----------------------------------------------------------------------------------- the frozen implementations
 class OldGeometry:
-    """physdyn_ros/geometry.py before issue 15.7."""
+    """physdyn_ros/geometry.py before the move to scipy."""
 
     @staticmethod
     def f64(x):
@@ -164,7 +164,7 @@ class OldGeometry:
 
 
 class OldSimulator:
-    """The quaternion helpers of physdyn_ros/sim/simulator.py before issue 15.7."""
+    """The quaternion helpers of physdyn_ros/sim/simulator.py before the move to scipy."""
 
     @staticmethod
     def quat_mul(a, b):
@@ -216,7 +216,7 @@ class OldSimulator:
 
 
 class OldConvert:
-    """The rotation helpers of physdyn_ros/ros/convert.py before issue 15.7."""
+    """The rotation helpers of physdyn_ros/ros/convert.py before the move to scipy."""
 
     @staticmethod
     def quat_to_matrix(q):
@@ -242,7 +242,7 @@ class OldConvert:
 
 
 def old_slerp(q0, q1, w):
-    """bag/pushes.py's row-wise slerp before issue 15.7 (q0, q1 in the same hemisphere)."""
+    """bag/pushes.py's row-wise slerp before the move to scipy (q0, q1 in the same hemisphere)."""
     q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
     w = np.asarray(w, float)[:, None]
     dot = np.clip(np.sum(q0 * q1, axis=1, keepdims=True), -1.0, 1.0)
@@ -257,7 +257,7 @@ def old_slerp(q0, q1, w):
 
 
 def old_sample_quat(t, quat, times):
-    """The orientation part of bag/pushes.sample before issue 15.7."""
+    """The orientation part of bag/pushes.sample before the move to scipy."""
     i = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 1)
     j = np.minimum(i + 1, len(t) - 1)
     span = (t[j] - t[i]).astype(np.float64)
@@ -268,7 +268,7 @@ def old_sample_quat(t, quat, times):
 
 
 def old_observed_rotations(q_seq):
-    """predictor.Predictor._run's rotation increments between observed orientations before issue 15.7."""
+    """predictor.Predictor._run's rotation increments between observed orientations before the move to scipy."""
     return OldGeometry.quat_to_axis_angle(OldGeometry.quat_multiply(q_seq[1:], OldGeometry.quat_conjugate(q_seq[:-1])))
 
 

@@ -194,7 +194,8 @@ def test_perception_parameters_are_checked_when_set(rclpy_init, tiny_model):
 @pytest.mark.parametrize("value, why", [("abc", "expects an integer, got 'abc'"),
                                         ("2.5", "expects an integer, got 2.5")])
 def test_physdyn_up_refuses_a_parameter_of_the_wrong_type(value, why):
-    """`--param predictor:horizon:=abc` was ignored in silence (rcl keeps the first params file's type)."""
+    """`--param predictor:horizon:=abc` is refused with the reason, never ignored in silence (rcl keeps the first
+    params file's type)."""
     run = subprocess.run([str(ROOT / ".venv" / "bin" / "physdyn"), "up", "--nodes", "predictor", "--param",
                           f"predictor:horizon:={value}"], capture_output=True, text=True, timeout=60)
     assert run.returncode != 0

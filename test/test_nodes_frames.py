@@ -1,5 +1,5 @@
 """Clouds in a camera optical frame end to end: the sim publishes them (cloud_frame: camera), the perception node
-turns them into features in the table frame with the static transform the sim announces (issue 12.1)."""
+turns them into features in the table frame with the static transform the sim announces."""
 from __future__ import annotations
 
 import importlib.util

@@ -1,4 +1,4 @@
-"""Issue 15.1: perception, predictor and sim are managed (lifecycle) nodes. Each is driven over DDS through its
+"""Perception, predictor and sim are managed (lifecycle) nodes. Each is driven over DDS through its
 lifecycle services (lifecycle_msgs/srv/ChangeState, GetState) through configure, activate, deactivate and cleanup:
 it serves only while active (a request otherwise answers with the lifecycle state), /diagnostics reports the
 state, the model (the simulator) is loaded on configure and released on cleanup, and a configure with a bad model

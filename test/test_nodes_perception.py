@@ -161,7 +161,8 @@ def test_throttle_is_per_reason_kind():
 
 
 def test_different_bad_clouds_are_each_reported(tiny_model):
-    """Issue 14.7: over DDS, two different bad clouds 1.5 s apart were reported as one (a single 2 s throttle)."""
+    """Over DDS, two different bad clouds 1.5 s apart are each reported: the log throttles per reason, not with
+    one throttle for every warning."""
     import os
     import subprocess
     import sys
@@ -201,7 +202,7 @@ def test_different_bad_clouds_are_each_reported(tiny_model):
         assert reason in text, text[-3000:]
 
 
-# ------------------------------------------------------------------------------------- issue 12: real sensors
+# ------------------------------------------------------------------------------------------------ real sensors
 def test_reader_reads_padded_and_plain_layouts_alike():
     pts = box_surface(1000).astype(np.float32)
     pts[::7] = np.nan
@@ -239,7 +240,7 @@ def camera_params(scene, **more) -> dict:
 
 
 def test_several_objects_in_a_camera_frame_over_dds(rclpy_init, tiny_model):
-    """Issue 12.1/12.2: a 100k-point depth-camera cloud of a table with three objects, in the camera's optical
+    """A 100k-point depth-camera cloud of a table with three objects, in the camera's optical
     frame -> three features in the table frame, centroids within 1 cm, and their outlines as markers."""
     scene = tabletop_scene(100_000, rng=np.random.default_rng(7))
     node = perception(tiny_model, single_object=False, id_prefix="thing_", **camera_params(scene))
@@ -266,7 +267,7 @@ def test_several_objects_in_a_camera_frame_over_dds(rclpy_init, tiny_model):
 
 
 def test_ids_stay_stable_while_an_object_is_pushed(rclpy_init, tiny_model):
-    """Issue 12.2: over DDS, clouds at 30 Hz while the middle object slides 1.5 cm per cloud: every object keeps
+    """Over DDS, clouds at 30 Hz while the middle object slides 1.5 cm per cloud: every object keeps
     its id; a fourth object put on the table gets a new one."""
     node = perception(tiny_model, single_object=False, **camera_params(tabletop_scene(100)))
     lis = Listener(rclpy_init, "tracking_listener")
@@ -387,7 +388,7 @@ def test_tf2_gives_the_transform_when_it_is_installed(rclpy_init, tiny_model, mo
 
 
 def test_100k_cloud_with_three_objects_within_budget(rclpy_init):
-    """Issue 12.3: 100k points, three objects, the shipped model, one thread: at most 25 ms per cloud (p50), from
+    """100k points, three objects, the shipped model, one thread: at most 25 ms per cloud (p50), from
     the message to the three features. CPU time of this process, so other load on the machine does not count."""
     node = PerceptionNode(parameter_overrides=[Parameter("single_object", value=False),
                                                Parameter("num_threads", value=1)]

@@ -223,7 +223,7 @@ def test_service_answers_good_requests_and_refuses_bad_ones(rclpy_init, predicto
             "cloud has 0 finite points": request(cloud=xyz_to_cloud(np.full((9, 3), np.nan), "world")),
             "cloud frame_id 'camera' is not the table frame": request(cloud=xyz_to_cloud(CLOUD, "camera")),
             "initial_pose: orientation is not finite": request(object_id="mug", orientation=(0, 0, math.nan, 1)),
-            # issue 14.3: a cloud 70 m from the initial pose was accepted
+            # an initial pose far from its cloud is a mix-up, not a push
             "is 70.00 m from the cloud's centre": request(cloud=xyz_to_cloud(CLOUD, "world"),
                                                           position=(0.2, 70.1, 0.04)),
         }
@@ -314,7 +314,7 @@ def test_plan_push_service(rclpy_init, predictor):
             "no shape feature received for object 'cup'": plan_request(object_id="cup"),
             "time_budget must be finite and >= 0": plan_request(object_id="box", time_budget=-1.0),
             "goal_pose: position is not finite": plan_request(object_id="box", goal=(math.nan, 0.0, 0.0)),
-            # issue 14.3: an impulse of 8e8 N s was planned for a 1e9 kg object, and max_speed was unbounded
+            # an implausible mass and an unbounded max_speed are refused, not planned for
             "mass 1e+09 kg is not plausible for this object": plan_request(object_id="box", mass=1e9),
             "mass 1e+09 kg is not plausible": plan_request(cloud=xyz_to_cloud(CLOUD, "world"), mass=1e9),
             "mass 1e-05 kg is not plausible": plan_request(cloud=xyz_to_cloud(CLOUD, "world"), mass=1e-5),
@@ -333,7 +333,8 @@ def test_plan_push_service(rclpy_init, predictor):
 
 
 def test_plan_push_estimates_the_mass_with_the_simulators_density(rclpy_init, predictor):
-    """Issue 14.2: without a mass, plan_push used 1000 kg/m^3 (box seed 3, 2.72 kg, was planned as 5.95 kg)."""
+    """Without a mass, plan_push estimates it from the cloud with the simulator's density (within 10 %), and the
+    impulse is that mass times the push velocity."""
     from physdyn_ros.shapes import DEFAULT_DENSITY, resolve_shape
 
     shape = resolve_shape("box", 3, "")
@@ -351,7 +352,7 @@ def test_plan_push_estimates_the_mass_with_the_simulators_density(rclpy_init, pr
 
 
 def test_diagnostics_report_the_counters(rclpy_init, predictor):
-    """Issue 15.2: /diagnostics from the predictor: model id, counts, the last refusal (WARN after one)."""
+    """/diagnostics from the predictor: model id, counts, the last refusal (WARN after one)."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     node = predictor()
@@ -374,7 +375,7 @@ def test_diagnostics_report_the_counters(rclpy_init, predictor):
 
 
 def test_live_parameters_are_validated(rclpy_init, predictor):
-    """Issue 15.3: a bad value set at run time is refused with its reason (over DDS, as `ros2 param set` does);
+    """A bad value set at run time is refused with its reason (over DDS, as `ros2 param set` does);
     a bad value at start stops the node with the parameter named."""
     from rcl_interfaces.srv import SetParameters
 
@@ -398,7 +399,7 @@ def test_live_parameters_are_validated(rclpy_init, predictor):
 
 
 def test_predictions_carry_their_novelty(rclpy_init, predictor):
-    """issue 11: a prediction says how far its input lies from the training data. The shipped model (with a
+    """A prediction says how far its input lies from the training data. The shipped model (with a
     topple head) gives a finite novelty under 1 for an ordinary push of a small box and over 1 for a 4.9 m/s push
     (faster than any it was trained on); a model without the head says NaN (unknown)."""
     from physdyn_ros.resources import DEFAULT_MODEL

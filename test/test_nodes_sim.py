@@ -155,7 +155,7 @@ def test_spawn_object_service(rclpy_init, tmp_path):
         assert pb.success and "pybullet_data" in pb.message, pb.message
         assert sim.sim.ids == ["crate", "object"] and "pybullet_data" in sim.sim.get("object").shape.name
         call(rec.spawn, SpawnObject.Request(category="remove", object_id="crate"))
-        # issue 14.3: scale 1000 made a box of 494,000 t; the object in place is kept
+        # a scale that makes no tabletop object (x1000, or a 0.1 mm slab) is refused; the object in place is kept
         kept = sim.sim.shape.name
         huge = SpawnObject.Request(category="box")
         huge.scale.x = huge.scale.y = huge.scale.z = 1000.0
@@ -211,7 +211,7 @@ def test_cloud_is_the_posed_object_surface(rclpy_init, source):
 
 
 def test_sim_and_perception_publish_diagnostics(rclpy_init, tiny_model):
-    """Issue 15.2: /diagnostics from the sim and perception nodes too (the predictor's has its own test)."""
+    """/diagnostics from the sim and perception nodes too (the predictor's has its own test)."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from physdyn_ros.nodes.perception_node import PerceptionNode
@@ -245,7 +245,7 @@ def test_bad_objects_entry_stops_the_node(rclpy_init):
 
 
 def test_several_objects_tracked_pushed_by_id_and_refusals(rclpy_init, tiny_model):
-    """Issue 12: a table with three objects (two from the parameters, one spawned by the service):
+    """A table with three objects (two from the parameters, one spawned by the service):
     perception gives a feature per object at its centroid (within 1.5 cm); a push by id moves that object only
     and the tracked ids stay; an unknown id and an overlapping spawn are refused with the reason."""
     from physdyn_ros.msg import ShapeFeature

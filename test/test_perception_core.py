@@ -93,8 +93,8 @@ def test_clusters_that_are_not_objects():
 
 
 def test_segmentation_is_fast():
-    """Issue 12.3: a 100k-point cloud of a table with three objects in milliseconds (open3d's statistical
-    outlier removal over all points took 200 ms and more). CPU time, so a loaded machine does not fail it."""
+    """A 100k-point cloud of a table with three objects in milliseconds (so no statistical outlier removal over
+    all points, which alone costs more than that). CPU time, so a loaded machine does not fail it."""
     scene = tabletop_scene(100_000)
     cfg, rng = SceneConfig(), np.random.default_rng(0)
     segment(scene.points, cfg, scene.camera, rng)

@@ -368,7 +368,7 @@ def test_tip_estimate_agrees_with_pybullet():
 
 
 def test_no_plan_spins_faster_than_max_spin(planner):
-    """A push over the spin limit is infeasible: never returned (it was, when every candidate broke the limit)."""
+    """A push over the spin limit is infeasible: never returned, not even when every candidate breaks the limit."""
     cfg = replace(FAST, max_spin=0.5, max_iterations=2)
     goal = Goal(Pose2D(0.1, 0.05, 1.2), position_tolerance=0.02, yaw_tolerance=math.radians(10))
     try:

@@ -168,7 +168,7 @@ def test_one_goal_at_a_time_and_deactivate_stops_a_goal(suite):
 
 
 def test_a_goal_beyond_one_push_is_reached_in_legs(suite):
-    """A goal farther than one push slides was refused ("push twice") although max_pushes allowed several."""
+    """A goal farther than one push slides is reached in legs, not refused, when max_pushes allows several."""
     sim, pusher, client, states = suite
     here = states[-1].pose.position
     result = client.send(goal_msg(here.x - 0.5, here.y, position_tolerance=0.05, yaw_tolerance=math.pi,

@@ -21,7 +21,8 @@ def readme_block(name: str) -> str:
 
 
 def test_readme_commands_run_as_shown(tmp_path):
-    """Issue 14.5: the README's plan example (a mug) failed; every command of the block must exit 0."""
+    """A newcomer copies the README's commands as shown: every command of the block (a plan executed in the
+    sim among them) exits 0 without a traceback."""
     (tmp_path / ".venv").symlink_to(ROOT / ".venv")  # the commands name .venv/bin/... from the repository root
     commands = [ln for ln in readme_block("commands").splitlines() if ln.strip()]
     assert any("physdyn plan" in c and "--execute" in c for c in commands)
@@ -52,7 +53,8 @@ def test_readme_client_snippet_times_out_without_a_predictor(tmp_path):
 
 
 def test_info_prints_only_json_and_the_model_id():
-    """Issue 14.11: pybullet printed its build time into `physdyn info` output, and no model id was shown."""
+    """`physdyn info --json` prints only JSON (nothing pybullet prints at import on stdout) and names the shipped
+    model by its id."""
     run = subprocess.run([str(ROOT / ".venv" / "bin" / "physdyn"), "info", "--json"], capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 0, run.stderr

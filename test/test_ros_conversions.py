@@ -201,7 +201,7 @@ def test_markers_clear_first_and_have_stable_ids():
 
 @pytest.mark.parametrize("layout", ["plain", "padded_bigendian", "bad_datatype"])
 def test_bag_clouds_go_through_the_same_reader(pts, layout):
-    """Issue 15.9: one PointCloud2 reader. A cloud serialized by rclpy and deserialized by rosbags (as the bag
+    """One PointCloud2 reader. A cloud serialized by rclpy and deserialized by rosbags (as the bag
     tools read it, without rclpy) gives the same points, or the same refusal, as the rclpy message."""
     from rclpy.serialization import serialize_message
 

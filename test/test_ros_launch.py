@@ -80,7 +80,7 @@ def test_launch_file_starts_what_the_launcher_starts():
         assert n["ros_arguments"] == ["--log-level", ("LaunchConfiguration", "log_level")]
         assert "'use_sim_time': LaunchConfiguration('use_sim_time')" in str(n["parameters"][1])
         assert "'autostart': False" in str(n["parameters"][1])
-    # the launch file's arguments are exactly those `physdyn up` offers (issue 15.4)
+    # the launch file's arguments are exactly those `physdyn up` offers
     assert set(args) == set(LAUNCH_ARGUMENTS)
     import argparse
 
@@ -119,7 +119,7 @@ def _remote_parameters(node_name: str, names: list[str], timeout: float = 20.0) 
 
 
 def test_overrides_win_over_the_params_file(rclpy_init, tiny_model, tmp_path):
-    """Issue 14.1: -p overrides lost to the file's node section (real_time_factor stayed 1, horizon 60)."""
+    """-p overrides win over the params file's node section, and the file's values stay for the rest."""
     overrides = {"sim": ["real_time_factor:=0", "rate:=7.5", "category:=cylinder"],
                  "predictor": [f"model_path:={tiny_model}", "horizon:=30", "plan_time_budget:=1"]}
     with Suite(overrides=overrides, nodes=["sim", "predictor"], log_dir=tmp_path / "logs") as suite:
@@ -242,7 +242,7 @@ def test_demo_short_run(tmp_path, tiny_model):
 
     for p in pushes:
         assert len(p["true_xy"]) == 31 and len(p["predicted_xy"]) == 31
-        # the reported errors are the distance and the angle between the reported poses (issue 15.12)
+        # the reported errors are the distance and the angle between the reported poses
         assert p["position_error_cm"] == pytest.approx(100 * math.dist(p["predicted_final"], p["true_final"]))
         turn = Rotation.from_quat(p["predicted_quat"]).inv() * Rotation.from_quat(p["true_quat"])
         assert p["rotation_error_deg"] == pytest.approx(math.degrees(turn.magnitude()), abs=1e-6)
@@ -253,7 +253,8 @@ def test_demo_short_run(tmp_path, tiny_model):
 
 
 def test_demo_scores_a_toppled_push_up_to_the_topple():
-    """Issue 14.4: the demo scored where a toppled object rolled (144 cm "errors")."""
+    """A toppled push is scored at its last upright frame: where the object rolls after tipping over is no
+    prediction error (the model predicts the topple, not the roll)."""
     import numpy as np
     from scipy.spatial.transform import Rotation
 
@@ -279,7 +280,7 @@ def test_demo_scores_a_toppled_push_up_to_the_topple():
 
 
 def test_up_namespace_and_sim_time_reach_the_nodes(rclpy_init, tiny_model, tmp_path):
-    """Issue 15.4: `physdyn up --namespace --use-sim-time --no-sim`, as the launch file's arguments do."""
+    """`physdyn up --namespace --use-sim-time --no-sim`, as the launch file's arguments do."""
     proc = subprocess.Popen([PHYSDYN, "up", "--no-sim", "--nodes", "predictor", "--model", str(tiny_model),
                              "--namespace", "robot1", "--use-sim-time", "--log-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

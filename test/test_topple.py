@@ -661,8 +661,8 @@ def _tall_box_pushes(fitted, seed: int):
 
 
 def test_a_short_horizon_is_the_prefix_of_the_full_roll_out(fitted):
-    """Review finding: the head's whole-push probability was squeezed into the requested horizon (horizon 1 read
-    'toppled by 67 ms' with the head's probability). A short roll-out is now the prefix of the 60-step one."""
+    """The head's whole-push probability is not squeezed into the requested horizon (horizon 1 would read
+    'toppled by 67 ms' with the head's probability): a short roll-out is the prefix of the 60-step one."""
     pred, code, v, w, full = _tall_box_pushes(fitted, seed=8)
     for h in (1, 5, 30):
         short = pred.rollout_batch(code, v, w, h)

@@ -1,4 +1,4 @@
-"""trajectory_to_msg (vectorised for issue 13) serializes to the same bytes as the previous implementation.
+"""trajectory_to_msg (vectorised) serializes to the same bytes as the previous implementation.
 
 The previous implementation is kept below as the reference. rclpy's serializer leaves the CDR alignment padding
 uninitialised (two serializations of one message can differ there), so the bytes are compared field by field:

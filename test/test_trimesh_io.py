@@ -1,4 +1,4 @@
-"""Issue 15.8: trimesh computes the mesh moments and mass properties (shapes/core.py) and reads PLY clouds
+"""trimesh computes the mesh moments and mass properties (shapes/core.py) and reads PLY clouds
 (predictor.load_cloud); the hand-written versions they replaced are frozen here and the results must agree."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from physdyn_ros.shapes.core import mass_properties, mesh_moments, orient_outwar
 
 
 def old_mesh_moments(vertices, faces):
-    """shapes/core.mesh_moments before issue 15.8 (signed tetrahedra)."""
+    """shapes/core.mesh_moments before the move to trimesh (signed tetrahedra)."""
     tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
@@ -24,7 +24,7 @@ def old_mesh_moments(vertices, faces):
 
 
 def old_mass_properties(vertices, faces, density, scale):
-    """The volume, COM and inertia of shapes/core.mass_properties before issue 15.8."""
+    """The volume, COM and inertia of shapes/core.mass_properties before the move to trimesh."""
     volume, first, second = old_mesh_moments(np.asarray(vertices, dtype=np.float64) * np.asarray(scale), faces)
     com = first / volume
     c_com = (second - volume * np.outer(com, com)) * density

@@ -1,4 +1,4 @@
-"""The shipped RViz config and Foxglove layout parse and show only topics the suite publishes (issue 15.5)."""
+"""The shipped RViz config and Foxglove layout parse and show only topics the suite publishes."""
 from __future__ import annotations
 
 import ast
