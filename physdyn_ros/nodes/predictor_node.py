@@ -46,7 +46,8 @@ from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
 from ..ros import plan_push
 from ..ros.params import declare
-from ..ros.requests import MAX_DENSITY, RequestError, check_pose_on_cloud, observed_steps, ordered_bounds
+from ..ros.requests import (MAX_DENSITY, RequestError, check_feature, check_feature_age, check_pose_on_cloud,
+                             observed_steps, ordered_bounds, shape_code)
 from ..ros.qos import FEATURE_QOS, LATCHED, STATE_QOS
 from ..ros.run import run_node
 from ..ros.throttle import ReasonThrottle
@@ -298,30 +299,8 @@ class PredictorNode(ManagedNode):
         else:
             before = [f for f in feats if time_to_ns(f.header.stamp) <= t_ns + SAME_INSTANT_NS]
             feat = before[-1] if before else feats[0]
-            feat_ns = time_to_ns(feat.header.stamp)
-            age = (t_ns - feat_ns) * NS
-            if feat_ns <= 0:
-                raise RequestError(f"shape feature of '{object_id}' has an unset stamp (0)")
-            if abs(age) > ABSURD_GAP:
-                raise RequestError(f"shape feature of '{object_id}' (stamp {feat_ns * NS:.3f} s) and the push "
-                                   f"(stamp {t_ns * NS:.3f} s) are {abs(age) / 86_400:.1f} days apart: one stamp is "
-                                   "absurd or from another clock (sim time vs wall time: use_sim_time)")
-            max_age = float(self._param("max_feature_age"))
-            if max_age > 0 and age < -max_age:
-                raise RequestError(f"every shape feature of '{object_id}' is newer than the push: the oldest by "
-                                   f"{-age:.2f} s (max_feature_age {max_age:g} s); is the push stamped late?")
-            if max_age > 0 and abs(age) > max_age:
-                raise RequestError(f"shape feature of '{object_id}' is stale: {age:.2f} s older than the push "
-                                   f"(max_feature_age {max_age:g} s); is the perception node receiving clouds?")
-        if feat.model_id != self.model_id:
-            raise RequestError(f"shape feature of '{object_id}' comes from model '{feat.model_id}' but this node "
-                               f"runs '{self.model_id}': run perception with the same model_path")
-        if feat.header.frame_id != self.table_frame:
-            raise RequestError(f"shape feature frame_id '{feat.header.frame_id}' is not the table frame "
-                               f"'{self.table_frame}'")
-        if len(feat.feature) != int(self.predictor.feature_dim):
-            raise RequestError(f"shape feature has {len(feat.feature)} numbers, the model expects "
-                               f"{self.predictor.feature_dim}")
+            check_feature_age(object_id, time_to_ns(feat.header.stamp), t_ns, float(self._param("max_feature_age")))
+        check_feature(feat, object_id, self.model_id, self.table_frame, int(self.predictor.feature_dim))
         return feat
 
     def feature_cloud(self, feat: ShapeFeature) -> np.ndarray | None:
@@ -352,11 +331,7 @@ class PredictorNode(ManagedNode):
         return rot.apply(points - p0) + pose[0]
 
     def shape_code(self, feat: ShapeFeature):
-        from ..predictor import ShapeCode
-
-        return ShapeCode(feature=np.asarray(feat.feature, dtype=np.float32), heading=float(feat.heading),
-                         centroid=xyz_to_numpy(feat.centroid), half_extents=xyz_to_numpy(feat.half_extents),
-                         num_points=int(feat.num_points), model_id=feat.model_id)
+        return shape_code(feat)
 
     def state_at(self, object_id: str, t_ns: int) -> tuple[ObjectState | None, bool]:
         """The newest object_state at or before t_ns, and whether it is the state of that instant."""

@@ -16,8 +16,8 @@ arrives (with one publisher per topic, reliable delivery is in order: everything
 REPAIR_WAIT has passed since its latest message. A stop therefore takes at most REPAIR_WAIT + 0.3 s; messages
 that arrive meanwhile are recorded too. A second signal skips the wait. Crash bounds, layout: bag/writer.py.
 
-    ros2 run physdyn_ros recorder_node --ros-args -p output:=session1 -p topics:="['object_state']"
-    physdyn record -o session1 object_state cloud /tf:tf2_msgs/msg/TFMessage
+    ros2 run physdyn_ros recorder_node --ros-args -p output:=run1 -p topics:="['object_state']"
+    physdyn record -o run1 object_state cloud /tf:tf2_msgs/msg/TFMessage
 """
 from __future__ import annotations
 

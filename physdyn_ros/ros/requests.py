@@ -5,7 +5,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .convert import pose_to_numpy, twist_to_numpy
+from .convert import pose_to_numpy, twist_to_numpy, xyz_to_numpy
 
 #: kg/m^3: the densities a pushed object can have (expanded polystyrene ~10, tungsten ~19,300); a request's
 #: mass is checked against the cloud's hull volume with them.
@@ -15,8 +15,52 @@ MIN_DENSITY, MAX_DENSITY = 5.0, 25_000.0
 POSE_CLOUD_SLACK = 0.1
 
 
+#: Stamps further apart than this (s) are not of one session: one is unset or from another clock.
+ABSURD_GAP = 86_400.0
+NS = 1e-9
+
+
 class RequestError(ValueError):
     """A bad input: the reason is logged or returned to the caller; nothing is published."""
+
+
+def check_feature_age(object_id: str, feat_ns: int, t_ns: int, max_age: float) -> None:
+    """RequestError unless a shape feature stamped feat_ns can describe the object at a push at t_ns (ns);
+    max_age s (0 = no limit) either way."""
+    age = (t_ns - feat_ns) * NS
+    if feat_ns <= 0:
+        raise RequestError(f"shape feature of '{object_id}' has an unset stamp (0)")
+    if abs(age) > ABSURD_GAP:
+        raise RequestError(f"shape feature of '{object_id}' (stamp {feat_ns * NS:.3f} s) and the push "
+                           f"(stamp {t_ns * NS:.3f} s) are {abs(age) / 86_400:.1f} days apart: one stamp is "
+                           "absurd or from another clock (sim time vs wall time: use_sim_time)")
+    if max_age > 0 and age < -max_age:
+        raise RequestError(f"every shape feature of '{object_id}' is newer than the push: the oldest by "
+                           f"{-age:.2f} s (max_feature_age {max_age:g} s); is the push stamped late?")
+    if max_age > 0 and abs(age) > max_age:
+        raise RequestError(f"shape feature of '{object_id}' is stale: {age:.2f} s older than the push "
+                           f"(max_feature_age {max_age:g} s); is the perception node receiving clouds?")
+
+
+def check_feature(feat: Any, object_id: str, model_id: str, table_frame: str, feature_dim: int) -> None:
+    """RequestError unless a ShapeFeature comes from this model, in the table frame, with the model's width."""
+    if feat.model_id != model_id:
+        raise RequestError(f"shape feature of '{object_id}' comes from model '{feat.model_id}' but this node "
+                           f"runs '{model_id}': run perception with the same model_path")
+    if feat.header.frame_id != table_frame:
+        raise RequestError(f"shape feature frame_id '{feat.header.frame_id}' is not the table frame "
+                           f"'{table_frame}'")
+    if len(feat.feature) != feature_dim:
+        raise RequestError(f"shape feature has {len(feat.feature)} numbers, the model expects {feature_dim}")
+
+
+def shape_code(feat: Any):
+    """A ShapeFeature message -> the Predictor's ShapeCode."""
+    from ..predictor import ShapeCode
+
+    return ShapeCode(feature=np.asarray(feat.feature, dtype=np.float32), heading=float(feat.heading),
+                     centroid=xyz_to_numpy(feat.centroid), half_extents=xyz_to_numpy(feat.half_extents),
+                     num_points=int(feat.num_points), model_id=feat.model_id)
 
 
 def ordered_bounds(bounds) -> str | None:
