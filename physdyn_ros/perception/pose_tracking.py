@@ -1,0 +1,345 @@
+"""Object poses and twists from the clouds themselves, and push onsets (numpy and scipy; no ROS).
+
+Per tracked object (its id from tracking.Tracker):
+* reference: when first seen, its points become an `ObjectModel` (registration.py) in the object's frame, whose
+  origin is the centre-of-mass estimate (given by the caller, e.g. the encoder's centre-of-mass head, else the
+  footprint estimate `footprint_com`) and whose axes are the table's at that instant: the published orientation
+  is the rotation since the reference was captured (identity then), as Predictor.rollout takes orientations;
+* pose at every cloud: the object's points registered to the model (point-to-plane ICP) from the
+  constant-velocity prediction and, when the points' centroid moved away from its prediction, from that pose
+  moved by the shift too (the first cloud of a push is far from any prediction); the fit explaining more points
+  wins; a fit that explains too few points keeps the track but
+  reports low confidence and the reason; points that fit well and lie off the model grow it;
+* twist: a least-squares line through the last `window` poses (positions, and rotation vectors relative to the
+  newest orientation) within `window_time`: zero-mean sensor noise averages out; at rest it is zero;
+* onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
+  rest pose; the first cloud beyond that opens a push. Once `onset_frames` moving clouds are in (or the object
+  rests again), the push's start is fitted (`fit_onset`): a slide under Coulomb friction from the rest pose,
+  s(tau) = v0 tau - a tau^2 / 2 until it stops, with the onset instant t0, v0 and the spin w0 as unknowns (a, the
+  deceleration, is `deceleration` unless enough clouds fix it). The state at t0 (the rest pose) with the twist
+  (v0, w0) is reported once as the push's initial state.
+
+Bad input: a stamp not after the previous one (a frozen sensor sends the same cloud twice) is skipped with the
+reason; time going back by more than `max_gap` (a replayed bag) drops every track; after a gap longer than
+`max_gap` the motion history is dropped (the prediction is stale) and the pose is registered from the last one;
+a partial view (the object half out of view, a hand in front) keeps the track with confidence = the share of
+points the model explains, and a fit that explains fewer than `min_inliers` leaves the pose as it was.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .registration import ObjectModel, register
+
+G = 9.81  # m/s^2
+#: Where a new track's centre of mass comes from (the perception node's track_com): the encoder's centre-of-mass
+#: head, or footprint_com.
+COM_SOURCES = ("model", "footprint")
+
+
+@dataclass
+class PoseConfig:
+    """Pose-tracking settings (the perception node's track_* parameters)."""
+
+    window: int = 4  # poses of the twist's line fit
+    window_time: float = 0.5  # s: older poses are not part of the fit
+    icp_points: int = 200  # observed points registered per object (a random subset)
+    icp_iterations: int = 10
+    tilt: bool = True  # False: yaw and translation only (objects that stay upright)
+    model_voxel: float = 0.003  # m
+    model_points: int = 3000
+    min_inliers: float = 0.35  # share of points the model must explain for the pose to count as measured
+    onset_distance: float = 0.004  # m from the rest pose
+    onset_angle: float = math.radians(3.0)  # rad from the rest orientation
+    onset_frames: int = 2  # moving clouds before the push's initial state is fitted
+    rest_frames: int = 3  # clouds within rest_distance of each other: at rest again
+    rest_distance: float = 0.002  # m
+    deceleration: float = 0.5 * G  # m/s^2: Coulomb friction mu g with mu 0.5 when the clouds cannot tell
+    max_gap: float = 1.0  # s without a cloud: the motion history is dropped
+
+
+@dataclass
+class TrackedState:
+    """One object's state at one cloud (or at a push's onset): table frame, SI units."""
+
+    object_id: str
+    t: float  # s
+    position: np.ndarray  # (3,) m, the centre-of-mass estimate
+    orientation: np.ndarray  # (4,) x, y, z, w: rotation since the reference was captured
+    linear: np.ndarray  # (3,) m/s
+    angular: np.ndarray  # (3,) rad/s
+    moving: bool
+    confidence: float  # 0..1, the share of the object's points its model explains
+    note: str = ""  # why the pose is uncertain, or what happened
+
+
+@dataclass
+class PoseUpdate:
+    """What one cloud gave: a state per tracked object, the onsets found, and the clouds or objects skipped."""
+
+    states: list[TrackedState] = field(default_factory=list)
+    onsets: list[TrackedState] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
+    """Centre-of-mass estimate of an upright object from a partial view: the area centroid of the convex hull of
+    the x-y projection of its top faces (a camera above the table sees them whole: they span the footprint of a
+    prism, a box or a cylinder standing on the table), and half-way
+    between the table and the top (the median height of the points within 5 mm of the highest)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.asarray(points, dtype=np.float64)
+    z = pts[:, 2]
+    band = z >= np.percentile(z, 99.5) - 0.005
+    top = float(np.median(z[band]))
+    # the top faces only: the side faces the camera sees lie on the footprint's near edge, densely, while its
+    # far edge is sampled by the top face alone, which would pull the hull's centroid towards the camera
+    xy = pts[band, :2] if band.sum() >= 20 else pts[:, :2]
+    try:
+        ring = xy[ConvexHull(xy).vertices]
+        x, y = ring[:, 0], ring[:, 1]
+        xn, yn = np.roll(x, -1), np.roll(y, -1)
+        cross = x * yn - xn * y
+        area = cross.sum() / 2.0
+        centre = (np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
+                  if abs(area) > 1e-9 else xy.mean(axis=0))
+    except (QhullError, ValueError):
+        centre = xy.mean(axis=0)
+    return np.array([centre[0], centre[1], 0.5 * (top + table_height)])
+
+
+def _line_velocity(ts: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Slope (per s) of least-squares lines through values (n, d) at times ts (n,)."""
+    tc = ts - ts.mean()
+    den = float(tc @ tc)
+    return (tc @ (values - values.mean(axis=0))) / den if den > 0 else np.zeros(values.shape[1])
+
+
+def _slide(tau: np.ndarray, v0: float, a: float) -> np.ndarray:
+    """Distance slid tau s after the onset at speed v0 decelerating at a (stopped at v0 / a); 0 before."""
+    tau = np.clip(tau, 0.0, v0 / a if a > 0 else np.inf)
+    return v0 * tau - 0.5 * a * tau * tau
+
+
+def fit_onset(ts: np.ndarray, disp: np.ndarray, rot: np.ndarray, t_rest: float, deceleration: float
+              ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The onset instant t0 (s), the velocity v0 (3,) and the spin w0 (3,) right after it, from the
+    displacements disp (n, 3) and rotation vectors rot (n, 3) relative to the rest pose at the moving clouds' times
+    ts (n,); t_rest is the last cloud at rest (t0 lies after it).
+
+    The slide follows a constant deceleration along its direction until it stops (see the module docstring);
+    with three or more moving clouds the deceleration is fitted too, else `deceleration` is used. The spin
+    decelerates in the same proportion (both come from the friction at the base), which is exact for a
+    translating block and a fair approximation for a spinning one."""
+    from scipy.optimize import least_squares
+
+    dist = np.linalg.norm(disp, axis=1)
+    direction = disp[-1] / dist[-1] if dist[-1] > 1e-9 else np.array([1.0, 0.0, 0.0])
+    s = disp @ direction
+    t1 = float(ts[0])
+    span = max(1e-3, t1 - t_rest)
+    fit_a = len(ts) >= 3
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        t0, v0 = x[0], x[1]
+        a = x[2] if fit_a else deceleration
+        return _slide(ts - t0, v0, a) - s
+
+    guess_v = max(1e-3, float(s[0]) / max(1e-3, t1 - (t_rest + 0.5 * span)))
+    lo = np.array([t_rest, 0.0] + ([0.0] if fit_a else []))
+    hi = np.array([t1 - 1e-4, 50.0] + ([20.0 * G] if fit_a else []))
+    x0 = np.clip([t_rest + 0.5 * span, guess_v] + ([deceleration] if fit_a else []), lo + 1e-9, hi - 1e-9)
+    sol = least_squares(residual, x0, bounds=(lo, hi))
+    t0, v0 = float(sol.x[0]), float(sol.x[1])
+    a = float(sol.x[2]) if fit_a else deceleration
+    # the spin: the rotation vector grows like the slide (same friction), scaled by w0 / v0
+    shape = _slide(ts - t0, max(v0, 1e-6), a) / max(v0, 1e-6)  # s / v0: seconds of "initial-speed motion"
+    den = float(shape @ shape)
+    w0 = (shape @ rot) / den if den > 1e-12 else np.zeros(3)
+    if v0 < 1e-4:  # a pure spin: time the onset by the rotation instead
+        w0 = rot[0] / max(1e-3, t1 - t0)
+    return t0, v0 * direction, w0
+
+
+@dataclass
+class PoseTrack:
+    """One object's pose history, rest pose and push state."""
+
+    object_id: str
+    model: ObjectModel
+    rotation: np.ndarray  # (3, 3) the latest pose
+    position: np.ndarray  # (3,)
+    centroid: np.ndarray  # (3,) centroid of the latest observed points (its shift guides the next guess)
+    t: float
+    history: deque = field(default_factory=lambda: deque(maxlen=16))  # (t, position, rotation)
+    rest_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rest_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    rest_t: float = 0.0
+    moving: bool = False
+    push: list = field(default_factory=list)  # moving clouds of the current push: (t, position, rotation)
+    reported: bool = False  # this push's onset is out
+    confidence: float = 1.0
+
+
+class PoseTracker:
+    """Poses, twists and onsets of the objects the id tracker names (see the module docstring)."""
+
+    def __init__(self, config: PoseConfig | None = None, seed: int = 0) -> None:
+        self.config = config if config is not None else PoseConfig()
+        self.tracks: dict[str, PoseTrack] = {}
+        self._rng = np.random.default_rng(seed)
+        self._last_t: float | None = None
+
+    def reset(self) -> None:
+        self.tracks.clear()
+        self._last_t = None
+
+    def forget(self, keep) -> list[str]:
+        """Drop the tracks whose ids are not in `keep` (ids the id tracker retired); their ids."""
+        gone = [k for k in self.tracks if k not in set(keep)]
+        for k in gone:
+            del self.tracks[k]
+        return gone
+
+    def update(self, t: float, detections, coms: dict | None = None, table_height: float = 0.0) -> PoseUpdate:
+        """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). coms: object_id ->
+        centre-of-mass estimate (3,) used when a track's reference is captured (default: footprint_com)."""
+        out = PoseUpdate()
+        if self._last_t is not None and t < self._last_t - self.config.max_gap:
+            out.notes.append(f"time went back from {self._last_t:.3f} s to {t:.3f} s (a replayed bag, a reset clock): "
+                             f"{len(self.tracks)} pose track(s) dropped")
+            self.reset()
+        if self._last_t is not None and t <= self._last_t:
+            out.notes.append(f"cloud at t = {t:.3f} s skipped: not after the previous cloud ({self._last_t:.3f} s; "
+                             "a frozen sensor or a replayed bag)")
+            return out
+        self._last_t = t
+        for object_id, points in detections:
+            pts = np.asarray(points, dtype=np.float64)
+            if len(pts) < 10:
+                out.notes.append(f"{object_id}: only {len(pts)} points, pose not updated")
+                continue
+            track = self.tracks.get(object_id)
+            if track is None:
+                com = (coms or {}).get(object_id)
+                track = self._capture(object_id, pts, t, footprint_com(pts, table_height) if com is None
+                                      else np.asarray(com, dtype=np.float64))
+                out.states.append(self._state(track, "reference captured"))
+                continue
+            state, onset = self._step(track, pts, t)
+            out.states.append(state)
+            if onset is not None:
+                out.onsets.append(onset)
+        return out
+
+    # --------------------------------------------------------------------------------------------- per track
+    def _capture(self, object_id: str, pts: np.ndarray, t: float, com: np.ndarray) -> PoseTrack:
+        cfg = self.config
+        model = ObjectModel(pts - com, cfg.model_voxel, cfg.model_points)
+        track = PoseTrack(object_id, model, np.eye(3), com.copy(), pts.mean(axis=0), t)
+        track.history.append((t, com.copy(), np.eye(3)))
+        track.rest_position, track.rest_rotation, track.rest_t = com.copy(), np.eye(3), t
+        self.tracks[object_id] = track
+        return track
+
+    def _guesses(self, track: PoseTrack, t: float, pts: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Starting poses at t: constant velocity (and spin) from the history; when the observed centroid has
+        moved away from its prediction (a far-off prediction, the first cloud of a push), also that pose moved by
+        the shift. Both: a partial view shifts the centroid without the object moving."""
+        dt = t - track.t
+        lin, ang = self._twist(track)
+        rot = Rotation.from_rotvec(ang * dt).as_matrix() @ track.rotation
+        pos = track.position + lin * dt
+        shift = pts.mean(axis=0) - (track.centroid + lin * dt)
+        out = [(rot, pos)]
+        if float(np.linalg.norm(shift)) > 0.005:
+            out.append((rot, pos + shift))
+        return out
+
+    def _step(self, track: PoseTrack, pts: np.ndarray, t: float) -> tuple[TrackedState, TrackedState | None]:
+        cfg = self.config
+        note = ""
+        if t - track.t > cfg.max_gap:  # a stale prediction: start the motion history over
+            keep = track.history[-1]
+            track.history.clear()
+            track.history.append(keep)
+            note = f"{t - track.t:.1f} s since the last cloud: motion history reset"
+        sub = pts if len(pts) <= cfg.icp_points else pts[self._rng.choice(len(pts), cfg.icp_points, replace=False)]
+        fit = None
+        for rot, pos in self._guesses(track, t, sub):
+            trial = register(sub, track.model, rot, pos, iterations=cfg.icp_iterations, tilt=cfg.tilt)
+            if fit is None or trial.inliers > fit.inliers + 0.02:  # the prediction wins a tie
+                fit = trial
+        assert fit is not None
+        track.confidence = fit.inliers
+        if fit.inliers < cfg.min_inliers:
+            # the pose and its centroid stay as they were: the next guess adds the whole shift since then
+            note = (f"{note}; " if note else "") + (f"pose uncertain: the model explains {100 * fit.inliers:.0f} % of "
+                                                    "the points (occluded, half out of view or another object)")
+            return self._state(track, note), None
+        track.centroid = pts.mean(axis=0)
+        track.rotation, track.position, track.t = fit.rotation, fit.translation, t
+        track.history.append((t, fit.translation.copy(), fit.rotation.copy()))
+        if fit.rmse < 0.0025:
+            track.model.grow((sub - fit.translation) @ fit.rotation)
+        onset = self._onset(track)
+        return self._state(track, note), onset
+
+    def _twist(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
+        """Line fit through the recent poses (see the module docstring); zero at rest or with one pose."""
+        cfg = self.config
+        hist = [h for h in list(track.history)[-cfg.window:] if h[0] >= track.t - cfg.window_time]
+        if len(hist) < 2 or not track.moving:
+            return np.zeros(3), np.zeros(3)
+        ts = np.array([h[0] for h in hist])
+        pos = np.array([h[1] for h in hist])
+        ref = hist[-1][2]
+        rv = np.array([Rotation.from_matrix(h[2] @ ref.T).as_rotvec() for h in hist])
+        return _line_velocity(ts, pos), _line_velocity(ts, rv)
+
+    def _onset(self, track: PoseTrack) -> TrackedState | None:
+        cfg = self.config
+        t, pos, rot = track.history[-1]
+        off = float(np.linalg.norm(pos - track.rest_position))
+        turn = float(np.linalg.norm(Rotation.from_matrix(rot @ track.rest_rotation.T).as_rotvec()))
+        if not track.moving:
+            if off > cfg.onset_distance or turn > cfg.onset_angle:
+                track.moving, track.push, track.reported = True, [(t, pos, rot)], False
+            else:  # at rest: the rest pose follows the mean of the latest poses (noise averages out)
+                track.rest_position = 0.8 * track.rest_position + 0.2 * pos
+                track.rest_t = t
+                return None
+        elif track.push and not track.reported:
+            track.push.append((t, pos, rot))
+        onset = None
+        recent = list(track.history)[-cfg.rest_frames:]
+        still = len(recent) >= cfg.rest_frames and max(
+            float(np.linalg.norm(h[1] - recent[-1][1])) for h in recent) < cfg.rest_distance
+        if track.push and not track.reported and (len(track.push) >= cfg.onset_frames or still):
+            onset = self._report_onset(track)
+        if still and track.moving and len(track.history) > cfg.rest_frames:
+            track.moving, track.push = False, []
+            track.rest_position, track.rest_rotation, track.rest_t = pos.copy(), rot.copy(), t
+        return onset
+
+    def _report_onset(self, track: PoseTrack) -> TrackedState:
+        cfg = self.config
+        track.reported = True
+        ts = np.array([p[0] for p in track.push])
+        disp = np.array([p[1] for p in track.push]) - track.rest_position
+        rot = np.array([Rotation.from_matrix(p[2] @ track.rest_rotation.T).as_rotvec() for p in track.push])
+        t0, v0, w0 = fit_onset(ts, disp, rot, track.rest_t, cfg.deceleration)
+        return TrackedState(track.object_id, t0, track.rest_position.copy(),
+                            Rotation.from_matrix(track.rest_rotation).as_quat(), v0, w0, True, track.confidence,
+                            f"push onset, seen {len(ts)} cloud(s) into it")
+
+    def _state(self, track: PoseTrack, note: str = "") -> TrackedState:
+        lin, ang = self._twist(track)
+        return TrackedState(track.object_id, track.t, track.position.copy(), Rotation.from_matrix(track.rotation)
+                            .as_quat(), lin, ang, track.moving, track.confidence, note)
