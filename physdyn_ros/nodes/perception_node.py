@@ -10,7 +10,11 @@ A thin ROS adapter over physdyn_ros.perception (the ROS-free core):
    when it is first seen or lost), as this node always did; otherwise one feature per object with the ids of
    perception.Tracker (`<id_prefix><n>`, stable while objects move);
 4. Predictor.encode per object; features stamped with the cloud's stamp in the table frame; outlines on
-   `object_markers`.
+   `object_markers`;
+5. with `track_poses`: each tracked object's pose and twist from the clouds themselves (perception.PoseTracker:
+   its points registered to its reference) on `tracked_state`, one ObjectState per object per cloud stamped with
+   the cloud's stamp; a push (an object at rest starts to move) gives, once, its state at the estimated onset
+   instant with the twist right after it on `initial_state`. Clouds or objects it skips say why on /diagnostics.
 
 A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the encoder (the model), the tf listener and the
 publishers are made on configure and released on cleanup; the cloud subscription exists only while active (clouds
@@ -18,6 +22,7 @@ are not processed otherwise). With `autostart` (default) it configures and activ
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 import zlib
@@ -29,19 +34,21 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..conventions import TABLE_FRAME
-from ..msg import ShapeFeature
+from ..msg import ObjectState, ShapeFeature
 from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
+from ..perception.pose_tracking import COM_SOURCES, PoseConfig, PoseTracker, TrackedState
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
 from ..perception.scene import random_rows
 from ..ros.cloud import cloud_size, cloud_to_xyz, xyz_to_cloud
-from ..ros.convert import point, time_to_ns, vector3
+from ..ros.convert import ns_to_time, point, time_to_ns, vector3
 from ..ros.model import load_predictor
 from ..ros.params import declare
 from ..ros.run import run_node
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
-from ..ros.qos import CLOUD_SENSOR_QOS, FEATURE_QOS, LATCHED
+from ..ros.qos import CLOUD_SENSOR_QOS, FEATURE_QOS, LATCHED, STATE_QOS
 from ..ros.throttle import ReasonThrottle
+from ..ros.trajectory import object_state
 
 #: Outline colours, picked by the object id (the same id keeps its colour).
 PALETTE = [(0.90, 0.10, 0.10), (0.10, 0.60, 0.90), (0.20, 0.75, 0.20), (0.95, 0.60, 0.05), (0.60, 0.25, 0.85),
@@ -66,7 +73,8 @@ def _transform_check(values) -> str | None:
 
 
 class PerceptionNode(ManagedNode):
-    """Subscribes `cloud`; publishes `shape_feature` (one per object) and `object_markers`."""
+    """Subscribes `cloud`; publishes `shape_feature` (one per object), `object_markers`, `tracked_state` and
+    `initial_state`."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__("perception", **kwargs)
@@ -130,9 +138,32 @@ class PerceptionNode(ManagedNode):
         declare(self, "publish_markers", True, "publish each object's outline and id on object_markers")
         declare(self, "feature_points", 1024, "points of each object sent with its feature (ShapeFeature.points, "
                 "what plan_push pushes on); 0 = none", low=0, high=100_000)
+        t = PoseConfig()
+        declare(self, "track_poses", True, "publish each tracked object's pose and twist on tracked_state and its "
+                "state at a push's onset on initial_state")
+        declare(self, "track_com", "model", "centre of mass of a new track's reference: 'model' = the encoder's "
+                "centre-of-mass head (the footprint estimate for models without one), 'footprint' = the middle of "
+                "the top faces' footprint, half-way up", choices=COM_SOURCES)
+        declare(self, "track_tilt", t.tilt, "register in 6 degrees of freedom; false: yaw and translation only "
+                "(objects that stay upright)")
+        declare(self, "track_onset_distance", t.onset_distance, "m from the rest pose: the object moves (a push)",
+                low=0.0005, high=1.0)
+        declare(self, "track_onset_angle", t.onset_angle, "rad from the rest orientation: the object moves",
+                low=0.001, high=math.pi)
+        declare(self, "track_onset_frames", t.onset_frames, "moving clouds before a push's initial state is "
+                "fitted and published", low=1, high=30)
+        declare(self, "track_deceleration", t.deceleration, "m/s^2, the sliding deceleration (friction mu g) "
+                "assumed when too few clouds of a push fix it", low=0.01, high=100.0)
+        declare(self, "track_max_gap", t.max_gap, "s without a cloud after which a track's motion history is "
+                "dropped", low=0.01, high=3600.0)
         self.predictor = None  # the encoder: loaded on configure, released on cleanup
         self._rng = np.random.default_rng(0)
         self.tracker = Tracker()
+        self.poses = PoseTracker()
+        self.states: list[ObjectState] = []  # of the last cloud, for tracked_state
+        self.onsets: list[ObjectState] = []  # of the last cloud, for initial_state
+        self.pushes = 0  # onsets published
+        self.tracking_note = ""  # the last thing pose tracking skipped, and why
         self.processed = 0  # clouds that gave at least one feature
         self.published = 0  # features
         self.last_error = ""
@@ -153,6 +184,7 @@ class PerceptionNode(ManagedNode):
         self.predictor = load_predictor(self, p("model_path").value, p("device").value, int(p("num_threads").value))
         self._warm_up()
         self.tracker = Tracker()
+        self.poses = PoseTracker()
         if p("use_tf").value and tf2_available():
             import tf2_ros
 
@@ -161,6 +193,8 @@ class PerceptionNode(ManagedNode):
             self._tf_listener = tf2_ros.TransformListener(self._tf_buffer, None, spin_thread=True)
         self.pub = self.configured_publisher(ShapeFeature, "shape_feature", FEATURE_QOS)
         self.pub_markers = self.configured_publisher(MarkerArray, "object_markers", LATCHED)
+        self.pub_state = self.configured_publisher(ObjectState, "tracked_state", STATE_QOS)
+        self.pub_initial = self.configured_publisher(ObjectState, "initial_state", STATE_QOS)
 
     def activate(self) -> None:
         self.active_subscription(PointCloud2, "cloud", self.on_cloud, CLOUD_SENSOR_QOS)
@@ -169,6 +203,7 @@ class PerceptionNode(ManagedNode):
         self._stop_tf()
         self._tf_buffer = None
         self.tracker = Tracker()
+        self.poses = PoseTracker()
         self.predictor = None  # the encoder's tensors go with the last reference
         import gc
 
@@ -191,7 +226,10 @@ class PerceptionNode(ManagedNode):
 
         scene = tabletop_scene(5000, rng=np.random.default_rng(0))
         found = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(0))
-        Tracker().update([o.centroid for o in found.objects], 0.0)
+        ids = Tracker().update([o.centroid for o in found.objects], 0.0)
+        warm = PoseTracker()
+        for k in range(3):  # capture, then registration and the twist
+            warm.update(0.1 * k, [(i, o.points) for i, o in zip(ids, found.objects)])
         outline_xy(found.objects[0].points)
         self.predictor.encode(found.objects[0].points)
 
@@ -247,7 +285,9 @@ class PerceptionNode(ManagedNode):
     # -------------------------------------------------------------------------------------------------- work
     def process(self, msg: PointCloud2) -> tuple[list[ShapeFeature], MarkerArray, str]:
         """Cloud -> (features, markers, reason); reason says why there is no feature (then features is empty).
-        ValueError for a cloud that cannot be read at all (layout, unknown frame)."""
+        The tracked states and onsets of the cloud are left in self.states / self.onsets. ValueError for a cloud
+        that cannot be read at all (layout, unknown frame)."""
+        self.states, self.onsets = [], []
         to_table = self.transform_to_table(msg.header)
         cfg = self.config()
         pts = cloud_to_xyz(msg, skip_nans=True, max_points=cfg.max_points, rng=self._rng)
@@ -285,7 +325,37 @@ class PerceptionNode(ManagedNode):
                 feature=np.asarray(code.feature, dtype=np.float32).reshape(-1).tolist(),
                 heading=float(code.heading), centroid=point(code.centroid), half_extents=vector3(code.half_extents),
                 num_points=int(len(obj.points)), points=self.feature_points(obj.points, header)))
+        if p("track_poses").value:
+            self.track(labelled, codes, heights, t, header)
         return features, self.markers(header, labelled), ""
+
+    def pose_config(self) -> PoseConfig:
+        p = self.get_parameter
+        return PoseConfig(tilt=bool(p("track_tilt").value), onset_distance=float(p("track_onset_distance").value),
+                          onset_angle=float(p("track_onset_angle").value),
+                          onset_frames=int(p("track_onset_frames").value),
+                          deceleration=float(p("track_deceleration").value), max_gap=float(p("track_max_gap").value))
+
+    def track(self, labelled, codes, heights, t: float, header: Header) -> None:
+        """Pose tracking of the labelled objects (their ids from the id tracker) into self.states / self.onsets."""
+        self.poses.config = self.pose_config()
+        for gone in self.poses.forget([tr.id for tr in self.tracker.tracks]):
+            self.tracking_note = f"{gone}: track retired (not seen for track_timeout)"
+        coms = None
+        if self.get_parameter("track_com").value == "model" and self.predictor.estimates_com:
+            coms = {object_id: code.centroid for (object_id, _), code in zip(labelled, codes)}
+        height = float(np.median(heights)) if heights else 0.0
+        update = self.poses.update(t, [(object_id, obj.points) for object_id, obj in labelled], coms, height)
+        if update.notes:
+            self.tracking_note = update.notes[-1]
+        self.states = [self.state_msg(s, header) for s in update.states]
+        self.onsets = [self.state_msg(s, Header(stamp=ns_to_time(int(round(s.t * 1e9))), frame_id=header.frame_id))
+                       for s in update.onsets]
+
+    @staticmethod
+    def state_msg(state: TrackedState, header: Header) -> ObjectState:
+        return object_state(header.frame_id, header.stamp, state.object_id, state.position, state.orientation,
+                            state.linear, state.angular)
 
     def feature_points(self, points: np.ndarray, header: Header) -> PointCloud2:
         """At most `feature_points` of an object's points (a random subset), for plan_push's contact geometry."""
@@ -324,7 +394,9 @@ class PerceptionNode(ManagedNode):
             "model_id": self.predictor.model_id if self.predictor is not None else "",
             "model_loaded": self.predictor is not None, "clouds_with_features": self.processed,
             "features": self.published, "clouds_refused": self.refused, "last_refusal": self.last_error,
-            "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks)}
+            "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks),
+            "pose_tracks": len(self.poses.tracks), "pushes_detected": self.pushes,
+            "last_tracking_note": self.tracking_note}
 
     def _reject(self, msg: PointCloud2, reason: str) -> None:
         self.refused += 1
@@ -343,6 +415,11 @@ class PerceptionNode(ManagedNode):
             return
         for f in features:
             self.pub.publish(f)
+        for state in self.states:
+            self.pub_state.publish(state)
+        for state in self.onsets:
+            self.pub_initial.publish(state)
+        self.pushes += len(self.onsets)
         if markers.markers:
             self.pub_markers.publish(markers)
         self.last_ms = 1e3 * (time.monotonic() - t0)

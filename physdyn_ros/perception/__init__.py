@@ -3,6 +3,8 @@
 - `frames`: sensor-to-table rigid transforms (static-transform parameters, camera optical frames);
 - `scene`: finite points, subsampling, table-plane RANSAC, outlier removal, clustering (`segment`);
 - `tracking`: ids stable from cloud to cloud (`Tracker`);
+- `registration`, `pose_tracking`: each tracked object's pose, twist and push onsets from its points
+  (`PoseTracker`);
 - `synthetic`: depth-camera clouds of a table with objects, for tests and benches.
 
 The perception node (physdyn_ros/nodes/perception_node.py) is a thin ROS adapter over this package; nothing here
@@ -10,7 +12,9 @@ imports rclpy.
 """
 from .frames import RigidTransform, camera_optical_pose, parse_transform
 from .scene import Preprocess, Scene, SceneConfig, SceneObject, TablePlane, outline_xy, preprocess, segment
+from .pose_tracking import PoseConfig, PoseTracker, TrackedState
 from .tracking import Tracker
 
 __all__ = ["RigidTransform", "camera_optical_pose", "parse_transform", "Preprocess", "Scene", "SceneConfig",
-           "SceneObject", "TablePlane", "outline_xy", "preprocess", "segment", "Tracker"]
+           "SceneObject", "TablePlane", "outline_xy", "preprocess", "segment", "Tracker", "PoseConfig", "PoseTracker",
+           "TrackedState"]

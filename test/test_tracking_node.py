@@ -1,0 +1,64 @@
+"""The perception node's pose tracking: tracked_state per object per cloud and initial_state once per push."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rclpy.parameter import Parameter
+
+from physdyn_ros.msg import ObjectState
+from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
+from physdyn_ros.ros.cloud import xyz_to_cloud
+from physdyn_ros.ros.convert import ns_to_time, time_to_ns
+from physdyn_ros.ros.qos import STATE_QOS
+from test_nodes_support import Spinner, tiny_model, wait_for  # noqa: F401 - fixture
+
+DT_NS = 66_666_667  # 15 Hz
+
+
+def test_tracked_and_initial_states_over_dds(rclpy_init, tiny_model):
+    """Three objects, 15 Hz clouds in the camera frame, object 0 pushed at 0.8 m/s (decelerating at 4 m/s^2):
+    three tracked states per cloud with the cloud's stamp, one initial state for the pushed object at the push
+    instant with its speed; a repeated stamp gives no state and says why."""
+    camera = tabletop_scene(100).camera
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
+        Parameter("track_com", value="footprint"), Parameter("sensor_frame", value="cam"),
+        Parameter("sensor_transform", value=camera.as_list())])
+    listener = rclpy_init.create_node("state_listener")
+    tracked: list[ObjectState] = []
+    initial: list[ObjectState] = []
+    listener.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    listener.create_subscription(ObjectState, "initial_state", initial.append, STATE_QOS)
+    v0, a, t_push, heading = 0.8, 4.0, 1.02, -1.2
+    base = 10**9
+    frames = int((t_push + v0 / a) * 15) + 6
+    with Spinner(node, listener):
+        assert wait_for(lambda: node.pub_state.get_subscription_count() > 0, 10)
+        for k in range(frames):
+            t = k / 15
+            tau = min(max(0.0, t - t_push), v0 / a)
+            s = v0 * tau - 0.5 * a * tau * tau
+            specs = list(DEFAULT_OBJECTS)
+            specs[0] = specs[0].moved(dx=s * math.cos(heading), dy=s * math.sin(heading))
+            scene = tabletop_scene(20_000, objects=specs, rng=np.random.default_rng(k))
+            node.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(base + k * DT_NS)))
+            assert len(node.states) == 3, node.last_error
+        node.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(base + (frames - 1) * DT_NS)))  # frozen
+        assert node.states == [] and "not after the previous cloud" in node.tracking_note
+        assert wait_for(lambda: len(tracked) >= 3 * frames and initial, 10), (len(tracked), len(initial))
+    assert len(tracked) == 3 * frames
+    stamps = sorted({time_to_ns(m.header.stamp) for m in tracked})
+    assert stamps == [base + k * DT_NS for k in range(frames)]
+    assert {m.header.frame_id for m in tracked} == {"world"}
+    last = [m for m in tracked if time_to_ns(m.header.stamp) == stamps[-1]]
+    pushed = min(last, key=lambda m: math.hypot(m.pose.position.x - specs[0].x, m.pose.position.y - specs[0].y))
+    assert math.hypot(pushed.pose.position.x - specs[0].x, pushed.pose.position.y - specs[0].y) < 0.01
+    assert {m.object_id for m in tracked} == {"object_1", "object_2", "object_3"}
+    assert len(initial) == 1 and initial[0].object_id == pushed.object_id
+    onset = initial[0]
+    assert abs(time_to_ns(onset.header.stamp) * 1e-9 - (1 + t_push)) < 0.5 / 15
+    speed = math.hypot(onset.twist.linear.x, onset.twist.linear.y)
+    assert abs(speed - v0) / v0 < 0.15, speed
+    assert not onset.toppled and node.pushes == 1
