@@ -257,11 +257,12 @@ class LifecycleProbe:
                 del self._pending[name]
         return dict(self.states)
 
-    def running(self, timeout: float = 1.5) -> list[str]:
-        """The names among this probe's nodes that some process already runs in its namespace: on the graph and
-        answering get_state within `timeout` s (a name the graph still lists for a node that is gone, or one that
-        does not spin, is not a running node)."""
-        deadline = time.monotonic() + timeout
+    def running(self, timeout: float = 1.5, answer_timeout: float = 6.0) -> list[str]:
+        """The names among this probe's nodes that some process already runs in its namespace: on the graph
+        within `timeout` s and answering get_state within `answer_timeout` s of the start (a name the graph still
+        lists for a node that is gone, or one that does not spin, is not a running node; a loaded machine may take
+        seconds to answer, an empty graph returns after `timeout`)."""
+        t0 = time.monotonic()
         while True:
             present = [n for n, ns in self.node.get_node_names_and_namespaces()
                        if n in self.clients and ns.rstrip("/") == self.namespace.rstrip("/")]
@@ -270,7 +271,8 @@ class LifecycleProbe:
             else:
                 self.executor.spin_once(timeout_sec=0.1)
             answered = sorted(n for n in present if n in self.states)
-            if (present and len(answered) == len(present)) or time.monotonic() >= deadline:
+            waited = time.monotonic() - t0
+            if (present and len(answered) == len(present)) or waited >= (answer_timeout if present else timeout):
                 return answered
 
     def close(self) -> None:
@@ -340,6 +342,7 @@ class Suite:
         # Parsed and checked now: a bad override stops everything before a node starts.
         self.values = {n: parse_overrides(n, self.overrides[n]) for n, _ in self.nodes if self.overrides.get(n)}
         self._tmp: tempfile.TemporaryDirectory | None = None
+        self._locks: list[IO[str]] = []  # this machine's lock of each node (start() to stop())
         self.log_dir, self.log_level = log_dir, log_level
         if namespace and not re.fullmatch(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*", namespace):
             raise ValueError(f"namespace {namespace!r} is not a ROS namespace (letters, digits, _ and /)")
@@ -367,9 +370,12 @@ class Suite:
         """Start the node processes; RuntimeError (nothing started) when `check_running` finds any of them
         already running on this domain and namespace (two of a node would answer every request twice)."""
         if check_running:
-            running = self.already_running()
+            domain = self.env.get("ROS_DOMAIN_ID", "").strip() or "0"
+            # On this machine a lock per node says so at once; the graph probe finds the rest (ros2 launch,
+            # other machines) once discovery has seen them.
+            running = self._lock_nodes(domain) or self.already_running()
             if running:
-                domain = self.env.get("ROS_DOMAIN_ID", "").strip() or "0"
+                self._unlock_nodes()
                 raise RuntimeError(f"node(s) {', '.join(running)} already run on ROS_DOMAIN_ID {domain} in namespace "
                                    f"'{self.namespace or '/'}': stop that suite first, or use another "
                                    "ROS_DOMAIN_ID or --namespace")
@@ -415,6 +421,29 @@ class Suite:
         finally:
             probe.close()
 
+    def _lock_nodes(self, domain: str) -> list[str]:
+        """Take this machine's lock of each node of the suite on this domain and namespace (released with the
+        process, even on SIGKILL); the names whose lock another process holds."""
+        import fcntl
+
+        held = []
+        for name, _ in self.nodes:
+            key = re.sub(r"[^A-Za-z0-9_]", "_", f"{domain}{self.namespace}_{name}")
+            f = open(Path(tempfile.gettempdir()) / f"physdyn_up_{key}.lock", "a")
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.close()
+                held.append(name)
+                continue
+            self._locks.append(f)
+        return held
+
+    def _unlock_nodes(self) -> None:
+        for f in self._locks:
+            f.close()  # closing the file releases its flock
+        self._locks.clear()
+
     def stop(self, timeout: float = 10.0) -> dict[str, int | None]:
         """SIGINT every node, then SIGTERM / SIGKILL the ones that linger. Returns the exit codes.
 
@@ -441,6 +470,7 @@ class Suite:
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
+        self._unlock_nodes()
         return {p.name: p.poll() for p in self.procs}
 
     def __enter__(self) -> "Suite":
