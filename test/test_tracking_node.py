@@ -62,3 +62,25 @@ def test_tracked_and_initial_states_over_dds(rclpy_init, tiny_model):
     speed = math.hypot(onset.twist.linear.x, onset.twist.linear.y)
     assert abs(speed - v0) / v0 < 0.15, speed
     assert not onset.toppled and node.pushes == 1
+
+
+def test_single_object_mode_tracks_its_object_and_restarts_with_its_id(rclpy_init, tiny_model):
+    """single_object: the one tracked object's states under object_id; once that object is gone and another is
+    followed under the same id, its pose track starts over (a new reference, not the old object's)."""
+    camera = tabletop_scene(100).camera
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("object_id", value="mug"),
+        Parameter("track_com", value="footprint"), Parameter("sensor_frame", value="cam"),
+        Parameter("sensor_transform", value=camera.as_list())])
+    for k in range(3):
+        scene = tabletop_scene(20_000, objects=DEFAULT_OBJECTS[:1], rng=np.random.default_rng(k))
+        node.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(10**9 + k * DT_NS)))
+        assert [m.object_id for m in node.states] == ["mug"], node.last_error
+    first = node.poses.tracks["mug"]
+    far = [DEFAULT_OBJECTS[2].moved(dx=-0.3)]  # the first object is gone; another one, 45 cm away
+    scene = tabletop_scene(20_000, objects=far, rng=np.random.default_rng(9))
+    node.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(10**9 + 3 * DT_NS)))
+    assert node.poses.tracks["mug"] is not first and "id restarted" in node.tracking_note
+    p = node.states[0].pose.position
+    assert math.hypot(p.x - far[0].x, p.y - far[0].y) < 0.01 and not node.onsets
+    node.destroy_node()

@@ -339,8 +339,12 @@ class PerceptionNode(ManagedNode):
     def track(self, labelled, codes, heights, t: float, header: Header) -> None:
         """Pose tracking of the labelled objects (their ids from the id tracker) into self.states / self.onsets."""
         self.poses.config = self.pose_config()
-        for gone in self.poses.forget([tr.id for tr in self.tracker.tracks]):
-            self.tracking_note = f"{gone}: track retired (not seen for track_timeout)"
+        # a pose track goes with its id: retired ids, and an id the id tracker just (re)started (single_object
+        # restarts object_id on whatever it sees after losing it), never inherit an old reference
+        fresh = {tr.id for tr in self.tracker.tracks if tr.hits == 1}
+        for gone in self.poses.forget([tr.id for tr in self.tracker.tracks if tr.id not in fresh]):
+            self.tracking_note = f"{gone}: pose track retired (" + ("id restarted on another detection)" if gone
+                                                                   in fresh else "not seen for track_timeout)")
         coms = None
         if self.get_parameter("track_com").value == "model" and self.predictor.estimates_com:
             coms = {object_id: code.centroid for (object_id, _), code in zip(labelled, codes)}
