@@ -39,8 +39,9 @@ from ..perception.frames import RigidTransform, camera_optical_pose
 from ..sim.table import (MAX_CONTACT_GAP, MAX_SPAWN_DISTANCE, check_size, check_spawn, parse_object_entry,
                          surface_gap)
 from ..sim.camera import MAX_PIXELS as MAX_CAMERA_PIXELS, MIN_PIXELS as MIN_CAMERA_PIXELS, CameraSpec, DepthCamera
+from ..sim.camera import points_differ
 from ..ros.cloud import xyz_to_cloud
-from ..ros.convert import ns_to_time, quat_to_matrix, twist, vector3, xyz_to_numpy
+from ..ros.convert import ns_to_time, quat_to_matrix, tf_message, twist, vector3, xyz_to_numpy
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.params import declare
@@ -362,14 +363,8 @@ class SimNode(ManagedNode):
 
     def _apart_from(self, other: str):
         """A parameter check: camera_eye and camera_target must differ (the camera looks from one to the other)."""
-        def check(value) -> str | None:
-            if not self.has_parameter(other):
-                return None
-            there = np.asarray(self.get_parameter(other).value, dtype=np.float64)
-            if len(value) == len(there) and np.linalg.norm(np.asarray(value, dtype=np.float64) - there) < 1e-9:
-                return f"must differ from {other} {there.tolist()} (the camera looks from camera_eye to camera_target)"
-            return None
-        return check
+        return lambda value: points_differ(value, self.get_parameter(other).value if self.has_parameter(other)
+                                           else None, other)
 
     def camera_pose(self) -> RigidTransform:
         """Pose of camera_frame in the table frame (maps optical-frame points into the table frame) from the
@@ -379,16 +374,8 @@ class SimNode(ManagedNode):
         if self.pub_tf_static is not None and (self._camera_pose is None or not (
                 np.allclose(pose.rotation, self._camera_pose.rotation)
                 and np.allclose(pose.translation, self._camera_pose.translation))):
-            from geometry_msgs.msg import TransformStamped
-            from tf2_msgs.msg import TFMessage
-
-            x, y, z, qx, qy, qz, qw = pose.as_list()
-            tf = TransformStamped(header=Header(frame_id=self.table_frame, stamp=self.get_clock().now().to_msg()),
-                                  child_frame_id=self.camera_frame)
-            tf.transform.translation.x, tf.transform.translation.y, tf.transform.translation.z = x, y, z
-            r = tf.transform.rotation
-            r.x, r.y, r.z, r.w = qx, qy, qz, qw
-            self.pub_tf_static.publish(TFMessage(transforms=[tf]))
+            self.pub_tf_static.publish(tf_message(pose.as_list(), self.table_frame, self.camera_frame,
+                                                  self.get_clock().now().to_msg()))
         self._camera_pose = pose
         return pose
 

@@ -123,3 +123,17 @@ def is_toppled(q) -> bool:
     of the unit quaternion, the same arithmetic as trajectory_to_msg's vectorised flags (bit for bit at 45 deg)."""
     x, y = (float(c) for c in np.asarray(q, dtype=np.float64).reshape(4)[:2])
     return bool(1 - 2 * (x * x + y * y) < math.cos(TOPPLE_ANGLE))
+
+
+def tf_message(pose_xyzq, parent: str, child: str, stamp: Time):
+    """tf2_msgs/TFMessage of one transform: child's pose [x, y, z, qx, qy, qz, qw] in parent (needs tf2_msgs)."""
+    from geometry_msgs.msg import TransformStamped
+    from std_msgs.msg import Header
+    from tf2_msgs.msg import TFMessage
+
+    x, y, z, qx, qy, qz, qw = (float(v) for v in pose_xyzq)
+    tf = TransformStamped(header=Header(frame_id=parent, stamp=stamp), child_frame_id=child)
+    tf.transform.translation.x, tf.transform.translation.y, tf.transform.translation.z = x, y, z
+    r = tf.transform.rotation
+    r.x, r.y, r.z, r.w = qx, qy, qz, qw
+    return TFMessage(transforms=[tf])

@@ -18,6 +18,15 @@ MIN_PIXELS, MAX_PIXELS = 8, 4096
 NEAR, FAR = 0.05, 5.0
 
 
+def points_differ(value: Sequence[float], other: Sequence[float] | None, other_name: str) -> str | None:
+    """A parameter check: the eye and the target (`other`, None when not declared yet) must differ; the reason."""
+    if other is None or len(value) != len(other):
+        return None
+    if np.linalg.norm(np.asarray(value, dtype=np.float64) - np.asarray(other, dtype=np.float64)) < 1e-9:
+        return f"must differ from {other_name} {list(other)} (the camera looks from camera_eye to camera_target)"
+    return None
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """Where the camera is and what it renders: eye and target in the table frame (m), image size (pixels),
