@@ -1,4 +1,17 @@
 #!/usr/bin/env python3
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """Perception for a depth camera: speed per cloud, objects found, dense clouds over DDS, a 30 Hz stream.
 
     .venv/bin/python bench/bench_perception.py [--samples 100] [--duration 30] [--rate 30] [--model PATH]

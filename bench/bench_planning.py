@@ -1,4 +1,17 @@
 #!/usr/bin/env python3
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """Push planning on unseen shapes in pybullet: success of single pushes and of closed-loop re-planning.
 
     .venv/bin/python bench/bench_planning.py [--model PATH] [--trials 42] [--max-pushes 3] [--budget 0.2]

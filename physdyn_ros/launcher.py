@@ -1,3 +1,16 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """``physdyn up``: start the node suite (sim, perception, predictor) as subprocesses with one params file.
 
 The same nodes, names and params file as launch/physdyn.launch.py, for machines without `ros2 launch`:
@@ -9,12 +22,10 @@ An override of a parameter the node does not have is refused before anything sta
 Dense clouds: unless FASTRTPS_DEFAULT_PROFILES_FILE or FASTDDS_DEFAULT_PROFILES_FILE is already set, both point the
 nodes at config/fastdds.xml (a 16 MB shared-memory segment: with Fast DDS's 512 KB default, 100k-point clouds
 between processes were lost). Set either variable to use your own profile.
-Each node's output is forwarded line by line with its name in front (or written to a log folder). Ctrl-C or
-SIGTERM is forwarded to every node as SIGINT (rclpy shuts down cleanly on it). If a node exits during start-up
-or later, the others are stopped and the command exits non-zero, naming the node and its exit code.
-The nodes are managed (lifecycle) nodes that configure and activate themselves (parameter autostart); the suite
-is ready when every node's <node>/get_state service (lifecycle_msgs/srv/GetState) answers "active" (with
---no-autostart: "unconfigured", for a lifecycle manager to take over).
+Each node's output is forwarded with its name in front (or written to a log folder). Ctrl-C, SIGTERM or SIGHUP
+stops every node (SIGINT: rclpy shuts down cleanly); a node that exits stops the others, and the command exits
+non-zero naming it. The suite is ready when every node's <node>/get_state answers "active" ("unconfigured"
+with --no-autostart, for a lifecycle manager); a second suite of the same nodes, domain and namespace is refused.
 """
 from __future__ import annotations
 

@@ -1,3 +1,16 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """Object ids that stay the same from cloud to cloud: nearest-centroid tracking with a gate (no ROS).
 
 Each track keeps the object's last centroid, a velocity estimate and the time it was last seen. For a new cloud
@@ -9,8 +22,13 @@ track with a new id (`<prefix><n>`, n counting from 1 and never reused by this t
 more than `timeout` seconds is retired, so an object that comes back after that gets a new id. Time going backwards
 by more than `timeout` (a bag played again) clears every track.
 
-Limits: two objects that swap places within one cloud interval, or an object that moves farther than `gate`
-beyond its predicted position between two clouds (a hard push seen at a low cloud rate), get swapped or new ids.
+Second chance (when the caller gives each detection's `shape_signature`): a detection left unmatched takes the
+id of an unmatched track within `reach` whose signature agrees (height and x-y spread within `shape_tolerance`,
+relative): a hard push seen at a low cloud rate moves an object beyond the gate in one interval, and an object that
+left the view comes back elsewhere; the signature keeps a different object from inheriting the id.
+
+Limits: two objects that swap places within one cloud interval get swapped ids; without signatures, an object that
+moves farther than `gate` beyond its predicted position between two clouds gets a new id.
 """
 from __future__ import annotations
 
@@ -26,15 +44,26 @@ class Track:
     velocity: np.ndarray  # m/s
     last_seen: float  # s
     hits: int = 1
+    signature: np.ndarray | None = None  # shape_signature of its detections (running mean)
 
     def predict(self, t: float) -> np.ndarray:
         return self.centroid + self.velocity * max(0.0, t - self.last_seen)
 
 
+def shape_signature(points: np.ndarray) -> np.ndarray:
+    """(3,) m, unchanged by a turn about the table's z axis: the points' height span and the square roots of the
+    two eigenvalues of their x-y covariance."""
+    pts = np.asarray(points, dtype=np.float64)
+    xy = pts[:, :2] - pts[:, :2].mean(axis=0)
+    vals = np.linalg.eigvalsh(xy.T @ xy / max(1, len(xy)))
+    return np.array([float(np.ptp(pts[:, 2])), *np.sqrt(np.maximum(vals, 0.0))])
+
+
 class Tracker:
     def __init__(self, prefix: str = "object_", gate: float = 0.1, timeout: float = 2.0,
-                 max_speed: float = 5.0) -> None:
+                 max_speed: float = 5.0, reach: float = 0.5, shape_tolerance: float = 0.25) -> None:
         self.prefix, self.gate, self.timeout, self.max_speed = prefix, float(gate), float(timeout), float(max_speed)
+        self.reach, self.shape_tolerance = float(reach), float(shape_tolerance)
         self.tracks: list[Track] = []
         self.count = 0  # ids handed out so far
         self._last_t: float | None = None
@@ -81,18 +110,41 @@ class Tracker:
         self.tracks.append(tr)
         return tr
 
-    def update(self, centroids, t: float) -> list[str]:
-        """Ids of the detections (centroids (K, 3), m) seen at time t (s), in their order."""
+    def _rematch(self, c: np.ndarray, sig: np.ndarray, matched: dict[int, int]) -> dict[int, int]:
+        """The second chance of the module docstring: unmatched detection index -> unmatched track index."""
+        from scipy.optimize import linear_sum_assignment
+
+        dets = [i for i in range(len(c)) if i not in matched]
+        taken = set(matched.values())
+        free = [j for j, tr in enumerate(self.tracks) if j not in taken and tr.signature is not None]
+        if not dets or not free:
+            return {}
+        dist = np.linalg.norm(c[dets][:, None, :] - np.array([self.tracks[j].centroid for j in free])[None], axis=2)
+        ref = np.array([self.tracks[j].signature for j in free])
+        rel = np.abs(sig[dets][:, None, :] - ref[None]) / np.maximum(ref[None], 0.01)
+        ok = (dist <= self.reach) & (rel.max(axis=2) <= self.shape_tolerance)
+        rows, cols = linear_sum_assignment(np.where(ok, dist, 1e6))
+        return {dets[r]: free[k] for r, k in zip(rows, cols) if ok[r, k]}
+
+    def update(self, centroids, t: float, signatures=None) -> list[str]:
+        """Ids of the detections (centroids (K, 3), m) seen at time t (s), in their order. signatures: (K, 3)
+        shape_signature of each detection (optional: enables the second chance)."""
         c = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
+        sig = None if signatures is None else np.asarray(signatures, dtype=np.float64).reshape(-1, 3)
         self._age(t)
         matched = self._match(c, t)
+        again = self._rematch(c, sig, matched) if sig is not None else {}
         ids = []
         for i in range(len(c)):
-            if i in matched:
-                tr = self.tracks[matched[i]]
+            if i in matched or i in again:
+                tr = self.tracks[matched[i] if i in matched else again[i]]
+                if i in again:  # a jump, not a velocity: the constant-velocity prediction starts over
+                    tr.centroid, tr.velocity = c[i], np.zeros(3)
                 self._update(tr, c[i], t)
             else:
                 tr = self._new(c[i], t)
+            if sig is not None:
+                tr.signature = sig[i] if tr.signature is None else 0.8 * tr.signature + 0.2 * sig[i]
             ids.append(tr.id)
         return ids
 

@@ -1,3 +1,16 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """The manifest of a dataset being generated: an exclusive lock for its read-modify-write (several processes may
 share one OUT), reading it, comparing parameters, adopting shards already on disk (by sha256, or by content when
 copied from another machine), the test groups and the final counts, and removing stale temporary files.
