@@ -19,9 +19,8 @@ A user's overrides (--param NODE:NAME:=VALUE, --model, --real-time-factor ...) g
 under the node's own section, because rclpy ranks a node's section of a params file above `-p name:=value`
 (which applies to `/**`): passed as -p they were silently dropped for every name that config/suite.yaml sets.
 An override of a parameter the node does not have is refused before anything starts.
-Dense clouds: unless FASTRTPS_DEFAULT_PROFILES_FILE or FASTDDS_DEFAULT_PROFILES_FILE is already set, both point the
-nodes at config/fastdds.xml (a 16 MB shared-memory segment: with Fast DDS's 512 KB default, 100k-point clouds
-between processes were lost). Set either variable to use your own profile.
+Dense clouds: unless FASTRTPS_ or FASTDDS_DEFAULT_PROFILES_FILE is set, both point the nodes at config/fastdds.xml
+(a 16 MB shared-memory segment: Fast DDS's 512 KB default loses 100k-point clouds between processes).
 Each node's output is forwarded with its name in front (or written to a log folder). Ctrl-C, SIGTERM or SIGHUP
 stops every node (SIGINT: rclpy shuts down cleanly); a node that exits stops the others, and the command exits
 non-zero naming it. The suite is ready when every node's <node>/get_state answers "active" ("unconfigured"
