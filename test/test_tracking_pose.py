@@ -25,6 +25,7 @@ from physdyn_ros.perception import SceneConfig, Tracker, segment
 from physdyn_ros.perception.pose_tracking import PoseConfig, PoseTracker, fit_onset, footprint_com
 from physdyn_ros.perception.registration import ObjectModel, register
 from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
+from physdyn_ros.perception.tracking import shape_signature
 
 RATE = 15.0  # Hz, the sim's camera
 
@@ -60,7 +61,7 @@ class Run:
             if crop is not None and crop(k):  # object 0's near half out of view
                 objs = [o if np.linalg.norm(o.centroid[:2] - [specs[0].x, specs[0].y]) > 0.05 else
                         type(o)(o.points[o.points[:, 0] < specs[0].x + 0.01]) for o in objs]
-            labels = self.ids.update([o.centroid for o in objs], t)
+            labels = self.ids.update([o.centroid for o in objs], t, [shape_signature(o.points) for o in objs])
             up = self.poses.update(t, [(i, o.points) for i, o in zip(labels, objs)])
             self.notes += up.notes
             moving = t_push < t < t_push + stop + 1.0 / RATE

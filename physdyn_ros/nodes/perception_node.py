@@ -52,6 +52,7 @@ from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse
 from ..perception.pose_tracking import COM_SOURCES, PoseConfig, PoseTracker, TrackedState
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
 from ..perception.scene import random_rows
+from ..perception.tracking import shape_signature
 from ..ros.cloud import cloud_size, cloud_to_xyz, xyz_to_cloud
 from ..ros.convert import ns_to_time, point, time_to_ns, vector3
 from ..ros.model import load_predictor
@@ -326,7 +327,8 @@ class PerceptionNode(ManagedNode):
                            f"tracked as '{labelled[0][0]}' (set single_object false for one feature per object)",
                            "several objects")
         else:
-            labelled = list(zip(self.tracker.update(centroids, t), scene.objects))
+            signatures = [shape_signature(o.points) for o in scene.objects]  # ids through fast pushes
+            labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
         plane = scene.plane

@@ -1,0 +1,48 @@
+"""Ids through fast pushes and absences: tracking.Tracker's second chance by shape signature."""
+from __future__ import annotations
+
+import numpy as np
+
+from physdyn_ros.perception import SceneConfig, Tracker, segment
+from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
+from physdyn_ros.perception.tracking import shape_signature
+
+
+def detect(specs, seed: int):
+    scene = tabletop_scene(20_000, objects=specs, rng=np.random.default_rng(seed))
+    objs = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(seed)).objects
+    return [o.centroid for o in objs], [shape_signature(o.points) for o in objs]
+
+
+def ids_by_object(tracker: Tracker, specs, t: float, seed: int) -> list[str]:
+    """The id given to each of `specs` (nearest detection)."""
+    cents, sigs = detect(specs, seed)
+    ids = tracker.update(cents, t, sigs)
+    return [ids[int(np.argmin([np.hypot(*(c[:2] - [s.x, s.y])) for c in cents]))] for s in specs]
+
+
+def test_a_20_cm_jump_between_clouds_keeps_the_id_and_nobody_swaps():
+    tracker = Tracker()
+    specs = list(DEFAULT_OBJECTS)
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    assert sorted(first) == ["object_1", "object_2", "object_3"]
+    specs[0] = specs[0].moved(dx=0.07, dy=-0.19, dyaw=0.8)  # 20 cm and 46 deg in one interval (5 Hz, 1 m/s)
+    assert ids_by_object(tracker, specs, 0.2, 1) == first
+    assert ids_by_object(tracker, specs, 0.4, 2) == first
+
+
+def test_an_object_that_leaves_and_returns_is_matched_by_shape():
+    tracker = Tracker(timeout=2.0)
+    specs = list(DEFAULT_OBJECTS)
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    away = specs[1:]
+    assert ids_by_object(tracker, away, 1.0, 1) == first[1:]  # object 0 out of view for a second
+    back = [specs[0].moved(dx=0.25, dy=0.1, dyaw=1.2)] + away  # ... and back, 27 cm away, turned
+    assert ids_by_object(tracker, back, 1.5, 2) == first
+    # another shape where it was is not given its id
+    tracker = Tracker()
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    ids_by_object(tracker, away, 1.0, 1)
+    other = [type(specs[0])("cylinder", specs[0].x + 0.2, specs[0].y, 0.0, (0.02, 0.02, 0.09))] + away
+    got = ids_by_object(tracker, other, 1.5, 2)
+    assert got[1:] == first[1:] and got[0] not in first
