@@ -108,12 +108,17 @@ def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3
 
     The episode's rules are planning.session.PushSession's (the `push_to_goal` action uses the same): stops when
     within tolerance, when the object toppled, when the planner refuses, or out of pushes; `result.outcome`
-    says which. `mass` is the mass used for impulses (default: the planner's estimate); `adapt` aims each push
-    by the observed / predicted slide ratio of the pushes before it.
+    says which. The yaw goal is folded by the symmetry of the first observed cloud (PushSession.observe_shape)
+    unless the goal gives its yaw_symmetry or the config's detect_symmetry is off. `mass` is the mass used for
+    impulses (default: the planner's estimate); `adapt` aims each push by the observed / predicted slide ratio of
+    the pushes before it.
     """
     session = PushSession(goal, max_pushes, adapt=adapt)
     result = ClosedLoopResult(success=False)
     obs = observe(sim, cloud_noise, rng)
+    if (config or planner.config).detect_symmetry:
+        session.observe_shape(obs.cloud)  # the yaw the first cloud shows: the planner's, the stops' and the result's
+    goal = session.goal
     while (stop := session.check(obs.pose, obs.toppled)) is None:
         try:
             cfg = config or planner.config

@@ -10,6 +10,10 @@ types (Pose2D, Goal, TableBounds, PlannerConfig, PushPlan) are planning/types.py
 Refusals (PlanningError, a ValueError, with the reason): non-finite or malformed poses and tolerances,
 start or goal off the table, no shape, no contact height within reach, a goal farther than a push of at most
 max_speed can slide (v^2 / (2 mu_min g)), and objects for which every push considered topples.
+
+Yaw goals the object can show: a goal whose yaw_symmetry is not known takes the cloud's (planning.symmetry,
+config.detect_symmetry): the yaw goal of an upright cylinder is ignored, a square box's taken modulo 90 deg,
+and the plan's message says so.
 """
 from __future__ import annotations
 
@@ -24,7 +28,9 @@ from ..predictor import ShapeCode, Trajectory
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
 from .models import DynamicsModel
 from .search import INFEASIBLE, Candidate, Search, StepCost
-from .types import Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, finite, wrap_angle, yaw_of
+from .symmetry import symmetry_note, yaw_symmetry
+from .types import (Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, finite, fold_yaw, wrap_angle,
+                    yaw_of)
 
 __all__ = ["PushPlanner"]
 
@@ -111,11 +117,13 @@ class PushPlanner:
                     raise PlanningError(f"{name} ({pose.x:.3f}, {pose.y:.3f}) is off the table "
                                         f"[{t.x_min:g}, {t.x_max:g}] x [{t.y_min:g}, {t.y_max:g}] m")
         code, cloud = self._shape(shape, cloud)
+        if goal.yaw_symmetry is None and cfg.detect_symmetry and cloud is not None:
+            goal = replace(goal, yaw_symmetry=yaw_symmetry(cloud))
         body = self._body(code, cloud, start, mass, cfg)
         horizon = cfg.auto_horizon(float(self.model.dt), int(self.model.max_horizon))
         delta = goal.pose.xy - start.xy
         dist = float(np.linalg.norm(delta))
-        yaw_gap = abs(float(wrap_angle(goal.pose.yaw - start.yaw)))
+        yaw_gap = fold_yaw(abs(float(wrap_angle(goal.pose.yaw - start.yaw))), goal.yaw_symmetry)
         if dist <= goal.position_tolerance and (goal.ignores_yaw or yaw_gap <= goal.yaw_tolerance):
             return self._no_push(start, goal, body, code, horizon, t0)
         if dist - goal.position_tolerance > cfg.reach():
@@ -136,11 +144,12 @@ class PushPlanner:
                         mass=body.mass, offset=0.0, contact_height=float(body.com[2]), start=start, goal=goal,
                         final_pose=start, final_position=pos[-1],
                         position_error=float(np.linalg.norm(goal.pose.xy - start.xy)),
-                        yaw_error=0.0 if goal.ignores_yaw else abs(float(wrap_angle(goal.pose.yaw - start.yaw))),
+                        yaw_error=0.0 if goal.ignores_yaw else float(fold_yaw(abs(float(wrap_angle(
+                            goal.pose.yaw - start.yaw))), goal.yaw_symmetry)),
                         topple_probability=0.0, robust_topple_probability=0.0, spread=0.0, within_tolerance=True,
                         trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
                         horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
-                        message="already within tolerance: no push needed")
+                        message=_with_note("already within tolerance: no push needed", goal))
 
     def _result(self, search: Search, best: Candidate, t0: float) -> PushPlan:
         cfg, goal, start = search.cfg, search.goal, search.start
@@ -177,4 +186,10 @@ class PushPlanner:
                         spread=float(best.spread), within_tolerance=bool(within), trajectory=traj,
                         planning_time=time.perf_counter() - t0, iterations=search.iterations,
                         rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,
-                        model_id=str(self.model.model_id), message=msg)
+                        model_id=str(self.model.model_id), message=_with_note(msg, goal))
+
+
+def _with_note(message: str, goal: Goal) -> str:
+    """The message, with what the object's symmetry did to the yaw goal (a yaw the cloud cannot show)."""
+    note = symmetry_note(goal.yaw_symmetry)
+    return f"{message}; {note}" if note else message

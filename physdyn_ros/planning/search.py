@@ -25,7 +25,8 @@ the worst perturbed push, is held to the limit: one unlucky perturbation of an o
 objects the closed loop moves, without fewer topples.
 
 Cost of a candidate (lower is better), from its predicted final state:
-    (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi)
+    (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi or
+      the object looks the same at every yaw; modulo 2 pi / k for a k-fold symmetric one: Goal.yaw_error)
     + (final speed / 0.1 m/s)^2, that speed taken from the last step's displacement (a trajectory still moving
       at the horizon has not reached its final pose)
     + 2 * topple probability + 1000 if the topple probability exceeds the limit or the COM leaves the table.
@@ -47,7 +48,7 @@ from ..learn.prior import MIN_RADIUS
 from ..predictor import Predictor, Trajectory, TrajectoryBatch
 from .body import BodyError, PushBody
 from .models import DynamicsModel
-from .types import Goal, PlannerConfig, PlanningError, Pose2D, wrap_angle, yaw_of
+from .types import Goal, PlannerConfig, PlanningError, Pose2D, yaw_of
 
 __all__ = ["INFEASIBLE", "MOVING_SCALE", "Candidate", "Search", "StepCost", "final_speed", "tip_probability"]
 
@@ -187,7 +188,7 @@ class Search:
         hf = (np.arange(heights) + 0.5) / heights
         if self.goal.ignores_yaw:
             return np.array([[speed * d[0], speed * d[1], 0.0, h] for h in hf])
-        turn = float(wrap_angle(self.goal.pose.yaw - self.start.yaw))
+        turn = self.goal.turn_from(self.start.yaw)  # to the nearest yaw the object's symmetry makes the goal's
         radius = max(float(horizontal_radius(self.body.points[None])[0]), MIN_RADIUS)  # the prior's spin lever
         want = math.copysign(math.sqrt(2.0 * cfg.friction * GRAVITY / radius * abs(turn)), turn)
         f = np.linspace(-cfg.max_offset_fraction, cfg.max_offset_fraction, offsets)
@@ -241,8 +242,7 @@ class Search:
         g, cfg = self.goal, self.cfg
         final = batch.positions[:, -1, :2]
         pos_err = np.linalg.norm(final - g.pose.xy, axis=1)
-        yaw = self.start.yaw + yaw_of(batch.orientations[:, -1])
-        yaw_err = np.abs(wrap_angle(yaw - g.pose.yaw))
+        yaw_err = np.asarray(g.yaw_error(self.start.yaw + yaw_of(batch.orientations[:, -1])))  # folded: symmetry
         topple = batch.topple_prob.max(axis=1)
         if tip is not None:
             topple = np.maximum(topple, tip_probability(tip))

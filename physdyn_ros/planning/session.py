@@ -4,6 +4,7 @@ Shared by the pybullet closed loop (planning.closed_loop) and the `push_to_goal`
 simulated bench and a robot stop for the same reasons and adapt the same way:
 
     session = PushSession(goal, max_pushes=3)
+    session.observe_shape(cloud)            # the yaw the object can show (planning.symmetry), once per episode
     while (stop := session.check(pose, toppled)) is None:
         plan = planner.plan(cloud, pose, session.aim(pose), ...)     # PlanningError -> session.refused(reason)
         ... execute, observe where the object came to rest ...
@@ -23,12 +24,13 @@ also be fed to the model while it moves (planning.adapt, `steps_in`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
 
-from .types import Goal, Pose2D, TableBounds, wrap_angle
+from .symmetry import yaw_symmetry
+from .types import Goal, Pose2D, TableBounds
 
 #: Outcomes of an episode: the goal reached, or why not. `refused`: the planner found no safe push (or the
 #: request was invalid); `toppled`: the object fell over; `out_of_pushes`: max_pushes used without reaching the
@@ -71,9 +73,10 @@ class PushStep:
 
 
 def goal_errors(pose: Pose2D, goal: Goal) -> tuple[float, float]:
-    """(position error m, yaw error rad; 0 when the goal ignores the yaw) of a pose."""
+    """(position error m, yaw error rad; 0 when the goal ignores the yaw) of a pose; the yaw error folded by the
+    goal's yaw_symmetry, the planner's rule (Goal.yaw_error)."""
     pos_err = float(np.linalg.norm(pose.xy - goal.pose.xy))
-    yaw_err = 0.0 if goal.ignores_yaw else abs(float(wrap_angle(pose.yaw - goal.pose.yaw)))
+    yaw_err = 0.0 if goal.ignores_yaw else float(goal.yaw_error(pose.yaw))
     return pos_err, yaw_err
 
 
@@ -88,6 +91,15 @@ class PushSession:
         if isinstance(self.max_pushes, bool) or not isinstance(self.max_pushes, (int, np.integer)) \
                 or self.max_pushes < 1:
             raise ValueError(f"max_pushes must be an integer >= 1, got {self.max_pushes!r}")
+
+    # ------------------------------------------------------------------------------------------- shape
+    def observe_shape(self, cloud: Optional[np.ndarray]) -> Optional[int]:
+        """Take the yaw symmetry of the object from its cloud (table frame) when the goal does not give it
+        (planning.symmetry.yaw_symmetry): from then on the episode's goal errors, stops and aims fold the yaw
+        the way the planner does. Returns the goal's yaw_symmetry (None: no cloud, still unknown)."""
+        if self.goal.yaw_symmetry is None and cloud is not None:
+            self.goal = replace(self.goal, yaw_symmetry=yaw_symmetry(cloud))
+        return self.goal.yaw_symmetry
 
     # ------------------------------------------------------------------------------------------- queries
     def within(self, pose: Pose2D) -> bool:
@@ -134,7 +146,8 @@ class PushSession:
         if far - self.goal.position_tolerance > reach and 1 < legs <= self.max_pushes - len(self.steps):
             xy = self._on_table(pose.xy + (self.goal.pose.xy - pose.xy) / legs, table)
             return Goal(Pose2D(float(xy[0]), float(xy[1]), self.goal.pose.yaw),
-                        max(self.goal.position_tolerance, LEG_TOLERANCE * far / legs), math.pi)
+                        max(self.goal.position_tolerance, LEG_TOLERANCE * far / legs), math.pi,
+                        self.goal.yaw_symmetry)
         if not self.adapt or not self.steps:
             return self.goal
         g = self.gain
@@ -144,7 +157,7 @@ class PushSession:
             delta = delta * (reach / dist)
         xy = self._on_table(pose.xy + delta, table)
         return Goal(Pose2D(float(xy[0]), float(xy[1]), self.goal.pose.yaw), self.goal.position_tolerance / g,
-                    self.goal.yaw_tolerance)
+                    self.goal.yaw_tolerance, self.goal.yaw_symmetry)
 
     @staticmethod
     def _on_table(xy: np.ndarray, table: Optional[TableBounds]) -> np.ndarray:

@@ -15,8 +15,8 @@ from ..conventions import GRAVITY
 from ..predictor import Trajectory
 from ..shapes.core import DEFAULT_DENSITY
 
-__all__ = ["Goal", "PlannerConfig", "PlanningError", "Pose2D", "PushPlan", "TableBounds", "finite", "wrap_angle",
-           "yaw_of"]
+__all__ = ["Goal", "PlannerConfig", "PlanningError", "Pose2D", "PushPlan", "TableBounds", "finite", "fold_yaw",
+           "wrap_angle", "yaw_of"]
 
 
 class PlanningError(ValueError):
@@ -27,6 +27,22 @@ def wrap_angle(a: Union[float, np.ndarray]) -> Union[float, np.ndarray]:
     """Angle(s) wrapped into [-pi, pi)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi if isinstance(a, np.ndarray) else \
         (float(a) + math.pi) % (2 * math.pi) - math.pi
+
+
+def fold_yaw(error: Union[float, np.ndarray], order: Optional[int]) -> Union[float, np.ndarray]:
+    """Yaw error(s) in [0, pi] (|wrapped|) under a k-fold symmetry about the up axis: the distance to the nearest
+    multiple of 2 pi / k; 0 for order 0 (continuous symmetry); unchanged, bit for bit, for order None or 1 and
+    wherever it is at most pi / k (planning.symmetry decides the order from a cloud)."""
+    if order is None or order == 1:
+        return error
+    if order == 0:
+        return np.zeros_like(error) if isinstance(error, np.ndarray) else 0.0
+    period = 2.0 * math.pi / order
+    if isinstance(error, np.ndarray):
+        r = np.mod(error, period)
+        return np.minimum(r, period - r)
+    r = float(error) % period
+    return min(r, period - r)
 
 
 def yaw_of(q: np.ndarray) -> np.ndarray:
@@ -80,11 +96,17 @@ class Pose2D:
 
 @dataclass(frozen=True)
 class Goal:
-    """Where the object should come to rest. yaw_tolerance >= pi means any yaw is fine."""
+    """Where the object should come to rest. yaw_tolerance >= pi means any yaw is fine.
+
+    yaw_symmetry: the order of the object's rotational symmetry about its up axis (planning.symmetry): 1 none,
+    k >= 2 the yaw counts modulo 2 pi / k, 0 any yaw is fine (an upright cylinder); None: not known yet (the
+    planner finds it from the cloud, PushSession.observe_shape for an episode; taken as 1 until then).
+    """
 
     pose: Pose2D
     position_tolerance: float = 0.02  # m
     yaw_tolerance: float = math.radians(10.0)  # rad
+    yaw_symmetry: Optional[int] = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pose", Pose2D.of(self.pose, "goal pose"))
@@ -93,10 +115,35 @@ class Goal:
             if v <= 0:
                 raise PlanningError(f"{name} must be positive, got {v}")
             object.__setattr__(self, name, v)
+        k = self.yaw_symmetry
+        if k is not None:
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
+                raise PlanningError(f"yaw_symmetry must be None or an integer >= 0, got {k!r}")
+            object.__setattr__(self, "yaw_symmetry", int(k))
 
     @property
     def ignores_yaw(self) -> bool:
-        return self.yaw_tolerance >= math.pi
+        """Any yaw is within tolerance: the tolerance covers a half turn, or the symmetry's half period."""
+        k = self.yaw_symmetry
+        if k == 0:
+            return True
+        return self.yaw_tolerance >= (math.pi / k if k is not None and k >= 2 else math.pi)
+
+    def yaw_error(self, yaw: Union[float, np.ndarray]) -> Union[float, np.ndarray]:
+        """|yaw - goal yaw| (rad, [0, pi]) of final yaw(s), folded by the symmetry (fold_yaw)."""
+        if isinstance(yaw, np.ndarray):
+            return fold_yaw(np.abs(wrap_angle(yaw - self.pose.yaw)), self.yaw_symmetry)
+        return fold_yaw(abs(float(wrap_angle(float(yaw) - self.pose.yaw))), self.yaw_symmetry)
+
+    def turn_from(self, yaw: float) -> float:
+        """Signed turn (rad) from `yaw` to the nearest yaw the symmetry makes equal to the goal's (the plain
+        wrapped difference, bit for bit, without symmetry or when it is within half a period)."""
+        turn = float(wrap_angle(self.pose.yaw - float(yaw)))
+        k = self.yaw_symmetry
+        if k is None or k <= 1:
+            return turn
+        period = 2.0 * math.pi / k
+        return turn - period * round(turn / period)
 
 
 @dataclass(frozen=True)
@@ -146,6 +193,7 @@ class PlannerConfig:
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
     density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
     seed: int = 0  # candidate sampling is deterministic for a given seed
+    detect_symmetry: bool = True  # a goal of unknown yaw_symmetry takes the cloud's (planning.symmetry)
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
