@@ -191,9 +191,17 @@ def check_cloud(cloud: Any) -> np.ndarray:
 class Predictor:
     """A loaded model ready to predict; create with Predictor.load(). Not thread-safe: one per thread."""
 
-    def __init__(self, model: Any, checkpoint: Mapping[str, Any], device: str = "cpu", path: str = "") -> None:
+    def __init__(self, model: Any, checkpoint: Mapping[str, Any], device: str = "cpu", path: str = "",
+                 precision: str = "auto") -> None:
+        from .learn.kernels import resolve_precision
+
         self._model = model
         self._device = device
+        # the precision of batched roll-outs (rollout_batch of more than one): "auto" is bf16 where the CPU has
+        # bf16 arithmetic and the batch is large enough for it to pay (kernels.AUTO_BF16_ROWS), fp32 elsewhere;
+        # batch 1 (rollout) always runs the float32 numpy kernel
+        resolve_precision(precision, str(device))  # ValueError for an unknown one, or bf16 off the CPU
+        self.precision: str = precision
         self.path = path
         self.model_id: str = str(checkpoint["model_id"])
         dataset = checkpoint.get("dataset") or {}
@@ -209,6 +217,14 @@ class Predictor:
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
         self._subsets: dict[tuple[int, int], np.ndarray] = {}
 
+    def batch_precision(self, rows: int) -> str:
+        """"fp32" or "bf16": the precision of a roll-out of `rows` trajectories (1: always the float32 kernel)."""
+        from .learn.kernels import resolve_precision
+
+        if rows <= 1 or getattr(self._model.cfg, "cell", "lstm") != "lstm":
+            return "fp32"
+        return resolve_precision(self.precision, str(self._device), rows)
+
     @property
     def estimates_com(self) -> bool:
         """True if ShapeCode.centroid is the model's centre-of-mass estimate (a centre-of-mass head), False if
@@ -217,12 +233,16 @@ class Predictor:
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike, None] = None, device: str = "cpu",
-             threads: Optional[int] = None) -> "Predictor":
+             threads: Optional[int] = None, precision: str = "auto") -> "Predictor":
         """Load a checkpoint (None: the shipped default model) and warm it up.
 
         FileNotFoundError if the file does not exist; learn.checkpoint.CheckpointError (a RuntimeError) if it
         is corrupt, not a physdyn checkpoint, or incompatible with this code. `threads` sets torch's CPU
-        threads (process-wide); for batch-1 latency 1 thread is fastest.
+        threads (process-wide); for batch-1 latency 1 thread is fastest. `precision` of batched roll-outs:
+        "auto" (bf16 matrix products where the CPU reports avx512_bf16 or amx_bf16, else fp32), "fp32" or
+        "bf16" (forced; correct on any CPU, slower than fp32 without bf16 arithmetic); ValueError otherwise.
+        "auto" keeps batches under kernels.AUTO_BF16_ROWS in fp32 (bf16 is no faster there). The model card
+        states bf16's accuracy cost; batch_precision(rows) says which a batch runs in.
         """
         import torch
 
@@ -234,11 +254,14 @@ class Predictor:
             if not Path(path).is_file():
                 raise FileNotFoundError(f"no shipped model at {path}; train one with 'physdyn train --config "
                                         "config/model_default.yaml ...' and pass its model_best.pt")
+        from .learn.kernels import resolve_precision
+
+        resolve_precision(precision, device)  # refuse a wrong precision before loading anything
         if threads is not None:
             torch.set_num_threads(int(threads))
         model, ckpt = load_model(path, map_location=device)
         model.to(device).eval()
-        pred = cls(model, ckpt, device, str(path))
+        pred = cls(model, ckpt, device, str(path), precision)
         pred._warm_up()
         return pred
 
@@ -446,7 +469,7 @@ class Predictor:
         vw = _yaw_rotate(np.stack([v0, w0], 1), -headings)  # world_to_c of both start velocities at once
         raw, xs, scales = self._model.rollout_arrays(np.asarray(feats[:, :self._dynamics_dim], np.float32), vw[:, 0],
                                                      vw[:, 1], horizon,
-                                                     obs_v, obs_w)
+                                                     obs_v, obs_w, self.precision)
         # physical units as model.rollout computes them (float32 products), then float64 in the table frame:
         # per step d_pos, d_rot, vel, angvel as four 3-vectors, turned by the heading at once
         phys = np.concatenate([raw[..., 6:12] * scales["out"][6:12], xs[:, 1:] * scales["in"]], -1)

@@ -2,7 +2,9 @@
 
     lstm_rollout        TorchScript, differentiable: training with feedback (autograd on)
     fused_lstm_rollout  TorchScript, no autograd: one product per layer and step, sigmoid only, buffers made once
-    numpy_lstm_rollout  numpy, batch 1 on the CPU: the Predictor's latency path
+    bf16_lstm_rollout   fused_lstm_rollout with bf16 matrix products (fp32 accumulation, fp32 state): batched
+                        roll-outs on CPUs with bf16 arithmetic (precision "bf16", or "auto" where the CPU has it)
+    numpy_lstm_rollout  numpy, batch 1 on the CPU: the Predictor's latency path (always float32)
     mlp_rollout         the paper's memoryless MLP baseline, eagerly (not latency critical)
 
 Each step computes the raw outputs y (13: d_vel, d_angvel, d_pos, d_rot normalised, topple logit) from the
@@ -10,11 +12,13 @@ normalised input x = [v, w] / scale (6), the shape feature and the recurrent sta
 (learn/prior.py) when the model has one, then feeds back x + gain * y[:6] (the model's own velocities) or, for the
 first K steps, the observed input. The LSTM kernels read weights prepared once per parameter change
 (lstm_weights, kernel_weights), which DynamicsModel caches. test_rollout_kernels holds the kernels to one function,
-test_rollout_identity to the shipped model's numbers bit for bit.
+test_rollout_identity to the shipped model's numbers bit for bit (in float32), test_precision the bf16 kernel to
+the float32 one within the accuracy the model card states.
 """
 from __future__ import annotations
 
-from typing import Any, List, Optional, Tuple
+import functools
+from typing import Any, FrozenSet, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -27,6 +31,74 @@ OUT_DIM = 13
 #: Rows per call of the fused inference kernel on the CPU: a block's gate buffers (4 x rows x 4 H floats) stay in
 #: the L2 cache; larger batches run block after block.
 KERNEL_ROWS = 256
+#: Rows per call of the bf16 kernel: oneDNN's bf16 product costs a fixed preparation per call (the weights'
+#: reorder into its blocked layout), which 1024 rows amortise; 512 or 256 rows are slower per row (measured:
+#: bench/bench_predictor.py's kernel figures).
+BF16_ROWS = 1024
+#: Roll-out precisions: "auto" picks bf16 where the CPU has bf16 arithmetic (cpu_has_bf16) and the batch has at
+#: least AUTO_BF16_ROWS rows, else fp32; "fp32" and "bf16" force one.
+PRECISIONS = ("auto", "fp32", "bf16")
+#: The smallest batch "auto" runs in bf16: below it the bf16 kernel is no faster than the float32 one (the fixed
+#: cost of oneDNN's bf16 product per call outweighs its arithmetic; measured on one Sapphire Rapids core, 60 steps:
+#: 16 rows 0.74x, 64 rows 0.90x, 128 rows 1.09x, 256 rows 1.38x, 1024 rows 1.96x the float32 kernel's speed), so
+#: small batches keep their float32 results.
+AUTO_BF16_ROWS = 128
+#: CPU flags (as /proc/cpuinfo and lscpu name them) of bf16 arithmetic: AVX-512 BF16 dot products, AMX tiles.
+BF16_FLAGS = ("avx512_bf16", "amx_bf16")
+#: Flags the benchmark reports (what the kernels' libraries can use).
+REPORTED_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_flags() -> FrozenSet[str]:
+    """The CPU's feature flags from /proc/cpuinfo (Linux; what lscpu prints), or, elsewhere, the bf16 flags
+    torch's own CPU probe confirms."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    probes = {"avx512_bf16": "_is_avx512_bf16_supported", "amx_bf16": "_is_amx_tile_supported",
+              "avx2": "_is_avx2_supported", "avx512f": "_is_avx512_supported"}
+    found = set()
+    for flag, probe in probes.items():
+        try:
+            if getattr(torch.cpu, probe)():
+                found.add(flag)
+        except Exception:  # noqa: BLE001 - a private probe a torch version lacks: the flag is unknown, not set
+            pass
+    return frozenset(found)
+
+
+def cpu_has_bf16() -> bool:
+    """True where the CPU reports bf16 arithmetic (BF16_FLAGS): there bf16 products run several times faster than
+    float32 ones; elsewhere torch emulates them, slower than float32."""
+    flags = cpu_flags()
+    return any(flag in flags for flag in BF16_FLAGS)
+
+
+def check_precision(precision: str) -> str:
+    """`precision` if it is one of PRECISIONS, else ValueError naming them."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    return precision
+
+
+def resolve_precision(precision: str, device: str = "cpu", rows: Optional[int] = None) -> str:
+    """The precision a batched roll-out of `rows` rows (None: a large batch) runs in, "fp32" or "bf16": "auto" is
+    bf16 on a CPU that reports bf16 arithmetic for batches of at least AUTO_BF16_ROWS, fp32 otherwise and on
+    other devices; "bf16" forced on another device is refused (the bf16 kernel's weights are made for CPU
+    models)."""
+    check_precision(precision)
+    on_cpu = str(device).split(":")[0] == "cpu"
+    if precision == "auto":
+        large = rows is None or rows >= AUTO_BF16_ROWS
+        return "bf16" if on_cpu and large and cpu_has_bf16() else "fp32"
+    if precision == "bf16" and not on_cpu:
+        raise ValueError(f"precision bf16 runs on the CPU only, not on device {device!r} (use fp32 or auto)")
+    return precision
 
 
 def _reorder_gates(w: Tensor) -> Tensor:
@@ -67,7 +139,8 @@ def kernel_weights(fast: dict[str, Any], cloud_scale: float) -> dict[str, Any]:
 
     Returns:
         w, b, w_feature, head, b_head, gain for fused_lstm_rollout; for float32 CPU weights also np_w0, np_w,
-        np_head, np_w_feature, np_b0, np_in, np_out, np_gain, np_cloud for numpy_rollout.
+        np_head, np_w_feature, np_b0, np_in, np_out, np_gain, np_cloud for numpy_rollout and bf16_w, bf16_out,
+        bf16_skip, bf16_b_head for bf16_lstm_rollout (bf16_weights).
     """
     w_x, w_h, bias = fast["w_x"], fast["w_h"], fast["bias"]
     w_out, b_out, w_skip = fast["w_out"], fast["b_out"], fast["w_skip"]
@@ -87,6 +160,7 @@ def kernel_weights(fast: dict[str, Any], cloud_scale: float) -> dict[str, Any]:
         "gain": fast["gain"].contiguous()}
     if w_out.dtype != torch.float32 or w_out.device.type != "cpu":
         return kernel
+    kernel.update(bf16_weights(kernel))
     # numpy kernel (batch 1): gates (o, i, f, g), o/i/f columns halved (sigmoid(a) = (1 + tanh(a / 2)) / 2),
     # h rows halved (z holds 2 h), a bias row before each layer's own h rows: z = [x, 1, h_0, 1, h_1, ...]
     order = torch.cat([torch.arange(2 * hidden, 3 * hidden), torch.arange(0, 2 * hidden),
@@ -113,6 +187,29 @@ def kernel_weights(fast: dict[str, Any], cloud_scale: float) -> dict[str, Any]:
                   np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32),
                   np_gain=fast["gain"].numpy().astype(np.float32), np_cloud=np.float32(cloud_scale))
     return kernel
+
+
+def bf16_weights(kernel: dict[str, Any]) -> dict[str, Any]:
+    """bf16_lstm_rollout's weights from fused_lstm_rollout's (kernel_weights): per layer one bf16 matrix whose rows
+    follow its input view of the row buffer, layer 0 [x (6), feature (F), 1 (bias), h_0], layer l
+    [h_{l-1}, 1 (bias), h_l]; the head split into its bf16 part on the last h and the float32 input skip.
+
+    Returns:
+        bf16_w: list of bf16 (rows, 4 H); bf16_out: (H, 13) bf16; bf16_skip: (6, 13) float32 or empty (0, 13);
+        bf16_b_head: (13,) float32.
+    """
+    w, b, head = kernel["w"], kernel["b"], kernel["head"]
+    layers = len(w)
+    hidden = w[layers - 1].shape[1] // 4
+    low = torch.bfloat16
+    stacked = [torch.cat([w[0][:6], kernel["w_feature"], b[0][None], w[0][6:]], 0)]
+    stacked += [torch.cat([w[i][:hidden], b[i][None], w[i][hidden:]], 0) for i in range(1, layers)]
+    skip = head[:6]
+    if not bool(skip.any()):  # a model without input skip: no product of x with zeros
+        skip = head.new_zeros(0, OUT_DIM)
+    return {"bf16_w": [m.to(low).contiguous() for m in stacked],
+            "bf16_out": head[6 + (layers - 1) * hidden:].to(low).contiguous(),
+            "bf16_skip": skip.contiguous(), "bf16_b_head": kernel["b_head"].contiguous()}
 
 
 def lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w_x: List[Tensor], w_h: List[Tensor],
@@ -251,6 +348,94 @@ def fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tensor
     return ys, xs
 
 
+def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor], w_out: Tensor, w_skip: Tensor,
+                      b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
+                      scale_out: Tensor) -> Tuple[Tensor, Tensor]:
+    """fused_lstm_rollout with its matrix products in bfloat16 (fp32 accumulation inside oneDNN) and everything
+    that carries state in float32: the gates after their sigmoid, the cell state, the head's input-skip term,
+    the prior and the integration of x. Only what enters a product is rounded to bf16: the row buffer and the
+    weights.
+
+    Row buffer z = [x, f, 1, h_0, 1, h_1, ...] (bf16): layer 0 multiplies the view [x, f, 1, h_0], layer l the
+    view [h_{l-1}, 1, h_l], by one stacked matrix whose 1-rows hold the biases (a plain product: oneDNN's bf16
+    addmm pays a pass over the output for its bias; the feature term, constant in time, costs no extra tile
+    of the product either). The products' outputs come back in bf16 (torch has no bf16 x bf16 -> fp32 product
+    on the CPU) and are widened to fp32 before the sigmoid: a forget gate near 1 rounded to bf16 would be up to
+    2^-9 off, and the cell state would forget too fast or too slowly over a long roll-out. Gates as
+    fused_lstm_rollout's (g columns doubled, c' = -2 c); the hidden states go straight into z in bf16.
+
+    Args:
+        x0, x_obs, gain, steps, prior, scale_in, scale_out: as lstm_rollout (float32).
+        feature: (B, F) float32 shape features.
+        w: per layer the stacked bf16 weights (rows [x, f, 1, h_0] for layer 0, [h_{l-1}, 1, h_l] after), gates
+            (i, f, o, g), g columns doubled (bf16_weights).
+        w_out: (H, 13) bf16, the head on the last layer's h.
+        w_skip: (6, 13) float32 input skip (multiplied with the float32 x), or empty (0, 13).
+        b_head: (13,) float32.
+
+    Returns:
+        Raw outputs (B, steps, 13) and the inputs used (B, steps + 1, 6), float32.
+    """
+    batch = x0.shape[0]
+    layers = len(w)
+    hidden = w[layers - 1].shape[1] // 4
+    features = feature.shape[1]
+    low = w[0].dtype
+    device = x0.device
+    z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low, device=device)
+    x = x0.clone()  # the float32 input; z[:, :6] is its bf16 copy for the products
+    z[:, :6] = x
+    z[:, 6:6 + features] = feature
+    zx = z[:, :6]
+    cs: List[Tensor] = []
+    hs: List[Tensor] = []
+    zin: List[Tensor] = []
+    for layer in range(layers):
+        cs.append(torch.zeros(batch, hidden, dtype=x0.dtype, device=device))
+        lo = 7 + features + layer * (hidden + 1)  # this layer's h; its 1 column just before it
+        z[:, lo - 1] = 1.0
+        hs.append(z[:, lo:lo + hidden])
+        zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
+    g = torch.empty(batch, 4 * hidden, dtype=low, device=device)
+    s = torch.empty(batch, 4 * hidden, dtype=x0.dtype, device=device)
+    sc = torch.empty(batch, hidden, dtype=x0.dtype, device=device)
+    yh = torch.empty(batch, w_out.shape[1], dtype=low, device=device)
+    s_i = s[:, :hidden]
+    s_f = s[:, hidden:2 * hidden]
+    s_o = s[:, 2 * hidden:3 * hidden]
+    s_g = s[:, 3 * hidden:]
+    ys = torch.empty(batch, steps, w_out.shape[1], dtype=x0.dtype, device=device)
+    xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype, device=device)
+    xs[:, 0] = x0
+    observed = x_obs.shape[1]
+    skip = w_skip.shape[0] > 0
+    for t in range(steps):
+        for layer in range(layers):
+            torch.mm(zin[layer], w[layer], out=g)
+            s.copy_(g)
+            s.sigmoid_()
+            c = cs[layer]
+            c.mul_(s_f).addcmul_(s_i, s_g, value=-4.0).add_(s_i, alpha=2.0)
+            torch.sigmoid(c, out=sc)
+            torch.addcmul(s_o, s_o, sc, value=-2.0, out=hs[layer])
+        y = ys[:, t]
+        torch.mm(hs[layers - 1], w_out, out=yh)
+        if skip:
+            torch.addmm(b_head, x, w_skip, out=y)
+            y.add_(yh)
+        else:
+            torch.add(yh, b_head, out=y)
+        if prior.shape[0] > 0:
+            y[:, :12].add_(prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out))
+        if t < observed:
+            x.copy_(x_obs[:, t])
+        else:
+            x.addcmul_(y[:, :6], gain)
+        zx.copy_(x)
+        xs[:, t + 1] = x
+    return ys, xs
+
+
 def numpy_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, w0: np.ndarray, w: List[np.ndarray], w_head: np.ndarray,
                        steps: int, prior: Optional[tuple] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Batch-1 roll-out in numpy: the latency path (torch's dispatch costs more than the arithmetic at batch 1,
@@ -334,26 +519,40 @@ def _compile(fn: Any) -> Any:
 
 lstm_rollout = _compile(lstm_rollout)
 fused_lstm_rollout = _compile(fused_lstm_rollout)
+bf16_lstm_rollout = _compile(bf16_lstm_rollout)
 
 
 def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor, steps: int, prior: Tensor,
-                  scale_in: Tensor, scale_out: Tensor) -> Tuple[Tensor, Tensor]:
-    """fused_lstm_rollout over blocks of KERNEL_ROWS rows on the CPU (a block's gate buffers stay in the L2 cache).
+                  scale_in: Tensor, scale_out: Tensor, precision: str = "fp32") -> Tuple[Tensor, Tensor]:
+    """fused_lstm_rollout over blocks of KERNEL_ROWS rows on the CPU (a block's gate buffers stay in the L2 cache),
+    or with precision "bf16" bf16_lstm_rollout over blocks of BF16_ROWS.
 
     Args:
         kernel: kernel_weights' dict.
         feature: (B, F) shape features.
         x0, x_obs, steps, prior, scale_in, scale_out: as lstm_rollout.
+        precision: "fp32" or "bf16" (resolve_precision's; bf16 needs a float32 CPU model's kernel).
 
     Returns:
         Raw outputs (B, steps, 13) and the inputs used (B, steps + 1, 6).
     """
-    const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])
-    rows = KERNEL_ROWS if x0.device.type == "cpu" else x0.shape[0]
-    parts = [fused_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], const0[i:i + rows], kernel["w"], kernel["b"],
-                                kernel["head"], kernel["b_head"], kernel["gain"], steps,
-                                prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out)
-             for i in range(0, x0.shape[0], rows)]
+    if precision == "bf16":
+        if "bf16_w" not in kernel:
+            raise ValueError("precision bf16 needs a float32 model on the CPU")
+        rows = BF16_ROWS
+        parts = [bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], kernel["bf16_w"],
+                                   kernel["bf16_out"], kernel["bf16_skip"], kernel["bf16_b_head"], kernel["gain"],
+                                   steps, prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out)
+                 for i in range(0, x0.shape[0], rows)]
+    elif precision == "fp32":
+        const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])
+        rows = KERNEL_ROWS if x0.device.type == "cpu" else x0.shape[0]
+        parts = [fused_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], const0[i:i + rows], kernel["w"],
+                                    kernel["b"], kernel["head"], kernel["b_head"], kernel["gain"], steps,
+                                    prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out)
+                 for i in range(0, x0.shape[0], rows)]
+    else:
+        raise ValueError(f"fused_rollout runs in fp32 or bf16, got {precision!r}")
     if len(parts) == 1:
         return parts[0]
     return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])

@@ -25,7 +25,8 @@ import torch
 from torch import Tensor, nn
 
 from ..conventions import GRAVITY
-from .kernels import OUT_DIM, fused_rollout, kernel_weights, lstm_rollout, lstm_weights, mlp_rollout, numpy_rollout
+from .kernels import (OUT_DIM, fused_rollout, kernel_weights, lstm_rollout, lstm_weights, mlp_rollout, numpy_rollout,
+                      resolve_precision)
 from .prior import MIN_RADIUS, prior_raw
 from .sections import known_keys
 from .topple import ToppleHead
@@ -323,12 +324,12 @@ class DynamicsModel(nn.Module):
 
     def rollout_raw(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                     obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
-                    fast: Optional[dict[str, Any]] = None) -> Tuple[Tensor, Tensor]:
+                    fast: Optional[dict[str, Any]] = None, precision: str = "fp32") -> Tuple[Tensor, Tensor]:
         """Closed-loop roll-out in the network's normalised spaces.
 
         The kernel (learn/kernels.py): the LSTM with autograd on runs the differentiable lstm_rollout; without,
-        the same function faster, numpy_lstm_rollout at batch 1 (float32 on the CPU), else fused_lstm_rollout;
-        the MLP baseline runs mlp_rollout.
+        the same function faster, numpy_lstm_rollout at batch 1 (float32 on the CPU), else fused_lstm_rollout,
+        or bf16_lstm_rollout when `precision` resolves to bf16; the MLP baseline runs mlp_rollout.
 
         Args:
             feature: (B, F) shape features (encode).
@@ -337,6 +338,9 @@ class DynamicsModel(nn.Module):
             obs_vel, obs_angvel: optional (B, K, 3) observed states of frames 1..K, fed instead of the model's
                 own predictions ("steps in" = K + 1); both or neither.
             fast: the model's _fast() dict, when the caller has it.
+            precision: "fp32" (default), "bf16" or "auto" (kernels.resolve_precision: by the CPU's flags and the
+                batch size) for the batched inference kernel; training (autograd), batch 1 and the MLP baseline
+                always run in the model's dtype.
 
         Returns:
             Raw outputs (B, steps, 13) (denormalize turns them physical) and the normalised inputs used
@@ -364,11 +368,12 @@ class DynamicsModel(nn.Module):
             raw_np, xs_np = numpy_rollout(kernel, feature.numpy(), x0[0].numpy(), x_obs[0].numpy(), int(steps),
                                           prior.numpy())
             return torch.from_numpy(raw_np)[None], torch.from_numpy(xs_np)[None]
-        return fused_rollout(kernel, feature, x0, x_obs, int(steps), prior, fast["in"], fast["out"])
+        return fused_rollout(kernel, feature, x0, x_obs, int(steps), prior, fast["in"], fast["out"],
+                             resolve_precision(precision, x0.device.type, x0.shape[0]))
 
     def rollout_arrays(self, feature: np.ndarray, vel0: np.ndarray, angvel0: np.ndarray, steps: int,
-                       obs_vel: Optional[np.ndarray] = None, obs_angvel: Optional[np.ndarray] = None
-                       ) -> Tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+                       obs_vel: Optional[np.ndarray] = None, obs_angvel: Optional[np.ndarray] = None,
+                       precision: str = "fp32") -> Tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """rollout_raw for numpy arrays, without autograd: the Predictor's entry point. A batch of one on the CPU
         never touches torch (the latency path: the prior's constants in float32 numpy, then numpy_rollout).
 
@@ -377,6 +382,7 @@ class DynamicsModel(nn.Module):
             vel0, angvel0: (B, 3) the state at frame 0 in frame C.
             steps: steps to roll out.
             obs_vel, obs_angvel: optional (B, K, 3) observed states of frames 1..K (as rollout_raw).
+            precision: of batches of more than one (rollout_raw); batch 1 runs the float32 numpy kernel.
 
         Returns:
             Raw outputs (B, steps, 13) and normalised inputs used (B, steps + 1, 6) as float32 arrays, and the
@@ -410,23 +416,24 @@ class DynamicsModel(nn.Module):
                 return None if a is None else torch.from_numpy(np.array(a, np.float32)).to(device)
 
             raw, xs = self.rollout_raw(tensor(feature), tensor(vel0), tensor(angvel0), steps, tensor(obs_vel),
-                                       tensor(obs_angvel), fast)
+                                       tensor(obs_angvel), fast, precision)
             scales = {"in": fast["in"].float().cpu().numpy(), "out": fast["out"].float().cpu().numpy()}
             return raw.float().cpu().numpy(), xs.float().cpu().numpy(), scales
 
     def rollout(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
-                obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None) -> dict[str, Tensor]:
+                obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
+                precision: str = "fp32") -> dict[str, Tensor]:
         """Physical roll-out in frame C (rollout_raw, denormalised).
 
         Args:
-            feature, vel0, angvel0, steps, obs_vel, obs_angvel: as rollout_raw.
+            feature, vel0, angvel0, steps, obs_vel, obs_angvel, precision: as rollout_raw.
 
         Returns:
             "vel", "angvel" (B, steps + 1, 3): the states, frame 0 included; "d_vel", "d_angvel", "d_pos", "d_rot"
             (B, steps, 3): the per-step increments (d_rot a world-fixed axis-angle); "topple_logit" (B, steps).
         """
         fast = self._fast()
-        raw, xs = self.rollout_raw(feature, vel0, angvel0, steps, obs_vel, obs_angvel, fast)
+        raw, xs = self.rollout_raw(feature, vel0, angvel0, steps, obs_vel, obs_angvel, fast, precision)
         out = self.denormalize(raw, fast)
         x = xs * fast["in"]
         out["vel"], out["angvel"] = x[..., 0:3], x[..., 3:6]

@@ -1,0 +1,212 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Roll-out precision (learn/kernels.py): bf16 products where the CPU has bf16 arithmetic, float32 elsewhere.
+
+* "auto" follows the flags the CPU reports (the flag reader monkeypatched: both kinds of CPU are tested on any
+  machine) and the batch size; "fp32" and "bf16" force one; anything else is refused.
+* float32 stays bit for bit what it was, whatever the CPU: "fp32", and "auto" on a CPU without bf16 arithmetic,
+  equal the float32 kernel exactly.
+* bf16 forced on (it runs on any CPU; without bf16 arithmetic torch emulates it) stays within the model card's
+  bounds of float32 with the shipped model: final position median changed by at most 0.1 cm and p90 by at most
+  0.3 cm, whole-push topple decisions identical on at least 99.5 % of the pushes. The held-out-split figures are
+  bench/precision.py's.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from physdyn_ros.learn import kernels
+
+FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
+AVX2_ONLY = frozenset({"fpu", "sse4_2", "avx", "avx2", "fma"})  # e.g. AMD Zen 3
+SAPPHIRE_RAPIDS = AVX2_ONLY | {"avx512f", "avx512_bf16", "amx_tile", "amx_bf16"}
+AVX512_BF16_ONLY = AVX2_ONLY | {"avx512f", "avx512_bf16"}  # e.g. AMD Zen 4, Intel Cooper Lake
+#: the model card's bounds
+MAX_MEDIAN_CM, MAX_P90_CM, MIN_AGREEMENT = 0.1, 0.3, 0.995
+
+
+def flags(monkeypatch: pytest.MonkeyPatch, reported: frozenset) -> None:
+    monkeypatch.setattr(kernels, "cpu_flags", lambda: reported)
+
+
+@pytest.fixture(scope="module")
+def predictors():
+    """The shipped model with fp32, bf16 and auto precision (one model shared: the same weights)."""
+    from physdyn_ros.predictor import Predictor
+
+    fp32 = Predictor.load(precision="fp32")
+    return {p: fp32 if p == "fp32" else Predictor(fp32._model, {"model_id": fp32.model_id}, precision=p)
+            for p in ("fp32", "bf16", "auto")}
+
+
+@pytest.fixture(scope="module")
+def pushes(predictors):
+    """256 pushes of the regression set's 20 test-split objects: their true initial states, then random pushes
+    (0.1-1.5 m/s, spin up to ~9 rad/s), the planner's kind of batch."""
+    pred = predictors["fp32"]
+    d = dict(np.load(FIXTURE))
+    codes = pred.encode_many(list(d["cloud"].astype(np.float64)))
+    n = 256
+    rng = np.random.default_rng(5)
+    idx = np.arange(n) % len(codes)
+    v, w = d["lin_vel"][idx, 0].copy(), d["ang_vel"][idx, 0].copy()
+    rand = np.arange(n) >= len(codes)
+    speed, az = rng.uniform(0.1, 1.5, n), rng.uniform(-np.pi, np.pi, n)
+    v[rand] = np.stack([speed * np.cos(az), speed * np.sin(az), np.zeros(n)], 1)[rand]
+    w[rand] = (rng.normal(size=(n, 3)) * [0.5, 0.5, 3.0])[rand]
+    return [codes[i] for i in idx], v, w, d, idx
+
+
+def test_auto_follows_the_cpu_flags_and_the_batch(monkeypatch):
+    flags(monkeypatch, AVX2_ONLY)
+    assert not kernels.cpu_has_bf16()
+    assert kernels.resolve_precision("auto") == "fp32"
+    assert kernels.resolve_precision("auto", "cpu", 4096) == "fp32"
+    assert kernels.resolve_precision("bf16", "cpu", 8) == "bf16"  # forced: runs (emulated) on any CPU
+    for reported in (SAPPHIRE_RAPIDS, AVX512_BF16_ONLY, AVX2_ONLY | {"amx_bf16"}):
+        flags(monkeypatch, reported)
+        assert kernels.cpu_has_bf16()
+        assert kernels.resolve_precision("auto") == "bf16"
+        assert kernels.resolve_precision("auto", "cpu", kernels.AUTO_BF16_ROWS) == "bf16"
+        assert kernels.resolve_precision("auto", "cpu", kernels.AUTO_BF16_ROWS - 1) == "fp32"  # no faster there
+        assert kernels.resolve_precision("fp32", "cpu", 4096) == "fp32"
+        assert kernels.resolve_precision("auto", "cuda:0") == "fp32"  # the bf16 kernel is the CPU's
+
+
+def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
+    from physdyn_ros.predictor import Predictor
+
+    for bad in ("fp16", "float32", "", "BF16"):
+        with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16"):
+            kernels.resolve_precision(bad)
+        with pytest.raises(ValueError, match="precision must be one of"):
+            Predictor.load(precision=bad)
+    with pytest.raises(ValueError, match="bf16 runs on the CPU only"):
+        kernels.resolve_precision("bf16", "cuda")
+
+
+def test_the_flag_reader_reads_this_cpu():
+    reported = kernels.cpu_flags()
+    assert isinstance(reported, frozenset)
+    if Path("/proc/cpuinfo").is_file():
+        text = Path("/proc/cpuinfo").read_text(errors="replace")
+        line = next(x for x in text.splitlines() if x.startswith("flags"))
+        assert reported == frozenset(line.split(":", 1)[1].split())
+        assert kernels.cpu_has_bf16() == any(f" {flag} " in f" {line} " for flag in ("avx512_bf16", "amx_bf16"))
+
+
+def test_bf16_kernel_is_compiled():
+    assert isinstance(kernels.bf16_lstm_rollout, torch.jit.ScriptFunction)
+
+
+def test_fp32_is_bit_identical_whatever_the_cpu(monkeypatch, predictors, pushes):
+    """fp32, and auto on an AVX2-only CPU, are the float32 kernel bit for bit (at a batch auto would run in bf16
+    on a bf16 CPU); the float32 kernel's weights and results are untouched by the bf16 ones beside them."""
+    codes, v, w, _, _ = pushes
+    ref = predictors["fp32"].rollout_batch(codes, v, w, 60)
+    m = predictors["fp32"]._model
+    feats = np.stack([c.feature[:m.feature_dim] for c in codes]).astype(np.float32)
+    with torch.inference_mode():
+        fast = m._fast()
+        kernel = m._kernel(fast)
+        f = torch.from_numpy(feats)
+        vel, ang = torch.from_numpy(v.astype(np.float32)), torch.from_numpy(w.astype(np.float32))
+        raw, xs = m.rollout_raw(f, vel, ang, 60, precision="fp32")
+        x0 = m._inputs(vel, ang, fast)
+        prior = torch.stack(m._prior_decel(f), -1)
+        direct = kernels.fused_rollout({k: kernel[k] for k in ("w", "b", "w_feature", "head", "b_head", "gain")},
+                                       f, x0, x0.new_zeros(len(x0), 0, 6), 60, prior, fast["in"], fast["out"])
+    assert torch.equal(raw, direct[0]) and torch.equal(xs, direct[1])
+    for reported in (AVX2_ONLY, SAPPHIRE_RAPIDS):
+        flags(monkeypatch, reported)
+        for precision in ("fp32", "auto") if reported is AVX2_ONLY else ("fp32",):
+            pred = predictors[precision]
+            assert pred.batch_precision(len(codes)) == "fp32"
+            got = pred.rollout_batch(codes, v, w, 60)
+            for name in ("positions", "orientations", "lin_vels", "ang_vels", "topple_prob"):
+                assert np.array_equal(getattr(got, name), getattr(ref, name)), (precision, name)
+
+
+def test_auto_on_a_bf16_cpu_runs_large_batches_in_bf16(monkeypatch, predictors, pushes):
+    """The planner's batches (128 candidates) and larger run in bf16 under auto; smaller ones keep float32."""
+    codes, v, w, _, _ = pushes
+    flags(monkeypatch, SAPPHIRE_RAPIDS)
+    auto, bf16, fp32 = predictors["auto"], predictors["bf16"], predictors["fp32"]
+    n = kernels.AUTO_BF16_ROWS
+    assert auto.batch_precision(n) == bf16.batch_precision(n) == "bf16" and auto.batch_precision(1) == "fp32"
+    big = auto.rollout_batch(codes[:n], v[:n], w[:n], 30)
+    assert np.array_equal(big.positions, bf16.rollout_batch(codes[:n], v[:n], w[:n], 30).positions)
+    assert not np.array_equal(big.positions, fp32.rollout_batch(codes[:n], v[:n], w[:n], 30).positions)
+    small = auto.rollout_batch(codes[:n - 1], v[:n - 1], w[:n - 1], 30)
+    assert np.array_equal(small.positions, fp32.rollout_batch(codes[:n - 1], v[:n - 1], w[:n - 1], 30).positions)
+    # batch 1 is the float32 numpy kernel in every precision
+    one = bf16.rollout(codes[0], v[0], w[0], 30)
+    assert np.array_equal(one.positions, fp32.rollout(codes[0], v[0], w[0], 30).positions)
+
+
+def test_bf16_stays_within_the_stated_bounds_of_fp32(predictors, pushes):
+    """The shipped model, 256 pushes: final positions moved by bf16, the error against the simulation of the
+    regression set's true pushes, and whole-push topple decisions."""
+    codes, v, w, d, idx = pushes
+    p0 = d["pos"][idx, 0]
+    q0 = d["quat"][idx, 0]
+    a = predictors["fp32"].rollout_batch(codes, v, w, 60, positions=p0, orientations=q0)
+    b = predictors["bf16"].rollout_batch(codes, v, w, 60, positions=p0, orientations=q0)
+    assert not np.array_equal(a.positions, b.positions)  # bf16 did run
+    moved = np.linalg.norm(b.positions[:, -1] - a.positions[:, -1], axis=-1) * 100.0
+    assert np.median(moved) <= MAX_MEDIAN_CM and np.percentile(moved, 90) <= MAX_P90_CM, moved
+    agree = np.mean((a.topple_probability > 0.5) == (b.topple_probability > 0.5))
+    assert agree >= MIN_AGREEMENT, agree
+    # against the simulation: the regression set's 20 true pushes (frame 60 of 61 recorded frames)
+    true = np.arange(len(idx)) < len(d["pos"])
+    calm = true & ~d["toppled"][idx].astype(bool)
+    err = {k: np.linalg.norm(t.positions[calm, -1] - d["pos"][idx[calm], 60], axis=-1) * 100.0
+           for k, t in (("fp32", a), ("bf16", b))}
+    assert abs(np.median(err["bf16"]) - np.median(err["fp32"])) <= MAX_MEDIAN_CM
+    assert abs(np.percentile(err["bf16"], 90) - np.percentile(err["fp32"], 90)) <= MAX_P90_CM
+
+
+def test_bf16_kernel_branches(monkeypatch):
+    """A model without prior or input skip, observed steps, several kernel blocks: the bf16 kernel computes the
+    float32 kernel's function (within bf16 rounding) in every branch, block boundaries included."""
+    from physdyn_ros.learn.model import STAT_KEYS, DynamicsModel, ModelConfig
+
+    cfg = ModelConfig.from_dict({"num_points": 64, "pointnet": [16, 32], "shape_mlp": [16, 8], "cell": "lstm",
+                                 "hidden_size": 16, "num_layers": 3, "max_horizon": 80})
+    torch.manual_seed(3)
+    model = DynamicsModel(cfg, dict(zip(STAT_KEYS, (0.5, 8.0, 0.2, 4.0, 0.03, 0.5, 0.15)))).eval()
+    monkeypatch.setattr(kernels, "BF16_ROWS", 16)  # 40 rows: three blocks
+    gen = torch.Generator().manual_seed(4)
+    feature = torch.randn(40, model.feature_dim, generator=gen)
+    vel, ang = torch.randn(40, 3, generator=gen) * 0.5, torch.randn(40, 3, generator=gen)
+    obs_v, obs_w = vel[:, None].repeat(1, 3, 1) * 0.9, ang[:, None].repeat(1, 3, 1) * 0.8
+    with torch.inference_mode():
+        for obs in ((None, None), (obs_v, obs_w)):
+            ref_raw, ref_xs = model.rollout_raw(feature, vel, ang, 25, *obs, precision="fp32")
+            raw, xs = model.rollout_raw(feature, vel, ang, 25, *obs, precision="bf16")
+            assert raw.dtype == xs.dtype == torch.float32 and raw.shape == ref_raw.shape
+            assert not torch.equal(raw, ref_raw)
+            scale = max(ref_raw.abs().max().item(), 1.0)
+            assert (raw - ref_raw).abs().max().item() <= 0.02 * scale
+            assert (xs - ref_xs).abs().max().item() <= 0.02 * max(ref_xs.abs().max().item(), 1.0)
+            if obs[0] is not None:
+                assert torch.equal(xs[:, 1:4], ref_xs[:, 1:4])  # observed inputs are copied, not computed
+            # each block on its own gives the same rows: the blocks are independent
+            part = model.rollout_raw(feature[16:32], vel[16:32], ang[16:32], 25,
+                                     *(None if o is None else o[16:32] for o in obs), precision="bf16")
+            assert torch.equal(part[0], raw[16:32])
