@@ -15,6 +15,7 @@
 """Push planning on unseen shapes in pybullet: success of single pushes and of closed-loop re-planning.
 
     .venv/bin/python bench/bench_planning.py [--model PATH] [--trials 42] [--max-pushes 3] [--budget 0.2]
+                                             [--skip-pybullet] [--skip-oracle]
 
 Trials cycle through three groups of shapes no model was trained on:
   procedural: the paper's six categories and the trained families (physdyn_ros.shapes.families) at shape
@@ -24,15 +25,25 @@ Trials cycle through three groups of shapes no model was trained on:
 Each trial spawns the object at a random yaw, draws a goal 8-22 cm away with a yaw change of up to +-45 deg,
 and runs the closed loop (planning.closed_loop.push_to_goal: plan, push in pybullet with the impulse at the
 planned contact point and the true mass, observe, adapt, re-plan) for up to --max-pushes pushes. Success =
-within 2 cm and 10 deg of the goal, upright. Every trial ends with an outcome (planning.session.OUTCOMES):
+within 2 cm and 10 deg of the goal, upright; the yaw taken modulo the symmetry of the first observed cloud
+about its up axis (planning.symmetry: an upright cylinder's yaw is not checked, a square box's modulo 90 deg),
+the rule the planner plans with. Every trial ends with an outcome (planning.session.OUTCOMES):
 reached, refused, toppled, out_of_pushes. Every planned contact point is checked against the true mesh: its
 distance to the object's surface (posed at the push) is reported (max, mm).
 The same trials are run with
   learned:  the planner over the learned model (the shipped one unless --model);
+  oracle:   the same planner over the true simulator (planning.sim_model.ExactSimModel: the world itself,
+            restored per candidate; no tipping estimate, pybullet decides topples) with a
+            fixed search (--oracle-iterations CEM iterations of 48 candidates: re-simulation is slow, the
+            ceiling must not depend on it): what the task allows;
   pybullet: the planner over pybullet re-simulation of the cloud's convex hull with friction off by +20 %
             (what a robotics user would plan with instead of a learned model).
+Unpushable trials: those the oracle cannot do upright, i.e. its episode ends refused (no push of the search
+keeps the object upright under the perturbations) or toppled. unpushable_refused counts those the learned
+planner refused; the goals are quoted against the oracle (success / oracle success).
 Prints a table per planner and per group; the last line is one JSON object (success_1push, success_3push,
-plan_time_p50_s, trials, toppled, refused, out_of_pushes, contact_surface_max_mm, pybullet_success_3push, ...).
+oracle_success_1push, oracle_success_3push, toppled_fraction, unpushable_trials, unpushable_refused,
+plan_time_p50_s, trials, ...).
 """
 from __future__ import annotations
 
@@ -42,6 +53,7 @@ import math
 import sys
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -89,8 +101,10 @@ def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
         max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0) -> dict:
+    """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator."""
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
+    from physdyn_ros.planning.sim_model import ExactSimModel
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
 
@@ -98,11 +112,15 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
     if iterations:  # a fixed search, independent of the machine's load (for comparing planner variants)
         cfg = PlannerConfig(time_budget=60.0, samples=48, max_iterations=iterations,
                             max_topple_probability=max_topple, robust_candidates=robust)
-    planner = PushPlanner(model, cfg)
-    planner.warm_up()
     rows, times, contact_mm = [], [], []
     t0 = time.monotonic()
     with Simulator(SimConfig(friction=friction, collision="parts")) as sim:
+        oracle = model == "oracle"
+        if oracle:  # the world itself decides topples: no tipping estimate
+            model, cfg = ExactSimModel(sim), replace(cfg, tip_check=False)
+        planner = PushPlanner(model, cfg)
+        if not oracle:  # the oracle's model reads the simulator's object: there is none before the first trial
+            planner.warm_up()
         original = closed_loop.execute
 
         def execute(sim_, plan, mode="impulse", num_frames=76):  # measure every contact against the true mesh
@@ -130,7 +148,8 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                 first = bool(p1 and not p1.toppled and p1.position_error <= 0.02
                              and p1.yaw_error <= math.radians(10.0))
                 rows.append({"group": c["group"], "first": first, "final": bool(res.success),
-                             "outcome": res.outcome, "pushes": len(res.pushes)})
+                             "outcome": res.outcome, "pushes": len(res.pushes), "shape": shape.name,
+                             "yaw_symmetry": res.goal.yaw_symmetry if res.goal else None})
                 e1 = (f"{100 * p1.position_error:4.1f} cm {math.degrees(p1.yaw_error):5.1f} deg (predicted "
                       f"{100 * p1.plan.position_error:.1f} cm, {math.degrees(p1.plan.yaw_error):.1f} deg)"
                       if p1 else "-")
@@ -138,18 +157,43 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                       f"{res.outcome:<13} after {len(res.pushes)}: {res.message}", flush=True)
         finally:
             closed_loop.execute = original
+            if oracle:
+                model.close()
     t = np.array(times) if times else np.array([math.nan])
     outcomes = Counter(r["outcome"] for r in rows)
     groups = {g: {"trials": sum(r["group"] == g for r in rows),
                   "success_1push": float(np.mean([r["first"] for r in rows if r["group"] == g] or [math.nan])),
                   "success_3push": float(np.mean([r["final"] for r in rows if r["group"] == g] or [math.nan]))}
               for g in GROUPS}
-    return {"name": name, "n": len(cases), "first": float(np.mean([r["first"] for r in rows])),
+    return {"name": name, "n": len(cases), "rows": rows, "first": float(np.mean([r["first"] for r in rows])),
             "final": float(np.mean([r["final"] for r in rows])), "plan_p50": float(np.median(t)),
             "plan_p90": float(np.percentile(t, 90)), "outcomes": dict(outcomes), "groups": groups,
             "contact_max_mm": float(max(contact_mm, default=math.nan)),
             "contact_p50_mm": float(np.median(contact_mm)) if contact_mm else math.nan,
             "seconds": time.monotonic() - t0}
+
+
+#: Oracle outcomes that make a trial unpushable: no push of the oracle's search keeps the object upright (under
+#: the planner's perturbations), or the one it chose toppled it.
+UNPUSHABLE = ("refused", "toppled")
+
+
+def ceiling_figures(learned: dict, oracle: dict | None) -> dict:
+    """The JSON line's figures against the oracle (None values without one)."""
+    if oracle is None:
+        return {"oracle_success_1push": None, "oracle_success_3push": None, "of_oracle_1push": None,
+                "of_oracle_3push": None, "unpushable_trials": None, "unpushable_refused": None}
+    pairs = list(zip(learned["rows"], oracle["rows"]))
+    unpushable = [a for a, b in pairs if b["outcome"] in UNPUSHABLE]
+
+    def share(key: str) -> float | None:
+        ok = sum(b[key] for _, b in pairs)
+        return round(sum(a[key] for a, _ in pairs) / ok, 3) if ok else None
+
+    return {"oracle_success_1push": round(oracle["first"], 3), "oracle_success_3push": round(oracle["final"], 3),
+            "of_oracle_1push": share("first"), "of_oracle_3push": share("final"),
+            "unpushable_trials": len(unpushable),
+            "unpushable_refused": sum(a["outcome"] == "refused" for a in unpushable)}
 
 
 def main() -> int:
@@ -161,7 +205,10 @@ def main() -> int:
     ap.add_argument("--friction", type=float, default=0.5, help="true friction of the simulated table")
     ap.add_argument("--friction-error", type=float, default=0.2, help="pybullet planner: relative friction error")
     ap.add_argument("--max-topple", type=float, default=0.35, help="planner max_topple_probability")
-    ap.add_argument("--skip-pybullet", action="store_true")
+    ap.add_argument("--skip-pybullet", action="store_true", help="no planner over the cloud's hull in pybullet")
+    ap.add_argument("--skip-oracle", action="store_true", help="no planner over the true simulator (the ceiling)")
+    ap.add_argument("--oracle-iterations", type=int, default=3,
+                    help="the oracle's fixed search: CEM iterations of 48 candidates (0: the --budget)")
     ap.add_argument("--robust-candidates", type=int, default=6, help="planner robust_candidates (0: no check)")
     ap.add_argument("--no-adapt", action="store_true", help="do not aim pushes by the observed slide ratio")
     ap.add_argument("--iterations", type=int, default=0,
@@ -179,6 +226,11 @@ def main() -> int:
     cases = trials(args.trials, args.seed)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
                    args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations)]
+    oracle = None
+    if not args.skip_oracle:
+        oracle = run("oracle", "oracle (true simulator)", cases, args.max_pushes, args.budget, args.friction,
+                     args.max_topple, args.robust_candidates, not args.no_adapt, args.oracle_iterations)
+        results.append(oracle)
     if not args.skip_pybullet:
         with PybulletModel(friction=args.friction * (1 + args.friction_error)) as pb:
             results.append(run(pb, f"pybullet hull, mu +{100 * args.friction_error:.0f}%", cases, args.max_pushes,
@@ -200,16 +252,30 @@ def main() -> int:
             print(f"| {r['name']} | {g} | {v['trials']} | {100 * v['success_1push']:.0f}% | "
                   f"{100 * v['success_3push']:.0f}% |")
     learned = results[0]
+    hull = next((r for r in results[1:] if r is not oracle), None)
+    ceiling = ceiling_figures(learned, oracle)
+    print(f"\nyaw checked modulo a symmetry in {sum(r['yaw_symmetry'] not in (None, 1) for r in learned['rows'])} "
+          f"trials (ignored in {sum(r['yaw_symmetry'] == 0 for r in learned['rows'])})")
+    if oracle is not None:
+        print(f"against the oracle: {ceiling['of_oracle_1push']} of its 1-push and {ceiling['of_oracle_3push']} of its "
+              f"<= {args.max_pushes}-push successes; {ceiling['unpushable_trials']} unpushable trials (the oracle "
+              f"refused or toppled), {ceiling['unpushable_refused']} of them refused by the learned planner")
+        for i, (a, b) in enumerate(zip(learned["rows"], oracle["rows"])):
+            if b["outcome"] in UNPUSHABLE or a["final"] != b["final"]:
+                print(f"  trial {i:2d} {a['shape']:<28} learned {a['outcome']:<13} oracle {b['outcome']}")
     out = {"trials": args.trials, "success_1push": round(learned["first"], 3),
-           "success_3push": round(learned["final"], 3), "plan_time_p50_s": round(learned["plan_p50"], 4),
+           "success_3push": round(learned["final"], 3), **ceiling,
+           "toppled_fraction": round(learned["outcomes"].get("toppled", 0) / max(len(learned["rows"]), 1), 3),
+           "plan_time_p50_s": round(learned["plan_p50"], 4),
            "plan_time_p90_s": round(learned["plan_p90"], 4), "reached": learned["outcomes"].get("reached", 0),
            "refused": learned["outcomes"].get("refused", 0), "toppled": learned["outcomes"].get("toppled", 0),
            "out_of_pushes": learned["outcomes"].get("out_of_pushes", 0),
            "contact_surface_max_mm": round(learned["contact_max_mm"], 3),
            "groups": {g: {k: round(v, 3) for k, v in d.items()} for g, d in learned["groups"].items()},
-           "pybullet_success_1push": round(results[1]["first"], 3) if len(results) > 1 else None,
-           "pybullet_success_3push": round(results[1]["final"], 3) if len(results) > 1 else None,
-           "pybullet_plan_time_p50_s": round(results[1]["plan_p50"], 4) if len(results) > 1 else None}
+           "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
+           "pybullet_success_1push": round(hull["first"], 3) if hull else None,
+           "pybullet_success_3push": round(hull["final"], 3) if hull else None,
+           "pybullet_plan_time_p50_s": round(hull["plan_p50"], 4) if hull else None}
     print(json.dumps(out))
     return 0
 

@@ -54,6 +54,7 @@ class ClosedLoopResult:
     position_error: float = math.inf
     yaw_error: float = math.inf
     message: str = ""
+    goal: Optional[Goal] = None  # the episode's goal, with the yaw symmetry its errors were folded by
 
     @property
     def planning_times(self) -> list[float]:
@@ -133,7 +134,7 @@ def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3
         step = session.record(start, plan.final_pose, obs.pose, toppled)
         result.pushes.append(PushOutcome(plan, obs.pose, step.position_error, step.yaw_error, toppled,
                                          int(rec["length"])))
-    result.final_pose = obs.pose
+    result.final_pose, result.goal = obs.pose, goal
     result.position_error, result.yaw_error = goal_errors(obs.pose, goal)
     result.success, result.outcome, result.message = stop.success, stop.outcome, stop.message
     return result
