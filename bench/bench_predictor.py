@@ -12,40 +12,51 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Latency and throughput of the Predictor against pybullet and the machine's matmul peak, in one run.
+"""Latency and throughput of the Predictor against pybullet and the machine's matmul peak, in one run, for each
+roll-out precision the CPU has.
 
     .venv/bin/python bench/bench_predictor.py [--model PATH] [--repeats 200] [--rounds 5] [--batch 1024]
+        [--precision auto|fp32|bf16] [--precisions fp32,bf16]
 
 Everything that is compared is measured in the same process, interleaved in --rounds rounds (a shared machine's
 load then weighs on both sides of a ratio alike), with torch on one thread:
+* CPU: the flags the kernels' libraries can use (avx2, fma, avx512f, avx512_bf16, amx_tile, amx_bf16, as lscpu
+  names them) and whether the CPU has bf16 arithmetic (learn/kernels.cpu_has_bf16).
 * latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (Predictor.rollout: the ROS predictor's and
-  planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud.
+  planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud. Batch 1 runs the float32 numpy
+  kernel in every precision, so it is one figure.
 * pybullet: physdyn_ros.sim.simulate_from_state re-simulating the same pushes (convex hull of the same clouds, the
   dataset generator's physics settings; pybullet is single-threaded), median ms per push.
-* per-core figures (the batch, the matmul peak, pybullet per core) count the thread's CPU time (time.thread_time):
+* per-core figures (the batch, the matmul peaks, pybullet per core) count the thread's CPU time (time.thread_time):
   on a shared machine a 0.5 s batch is preempted far more often than a 30 ms matmul, which wall time would count
   against the batch. Latencies (batch 1, pybullet_push_ms, msg_build_ms) are wall time.
-* batched: trajectories per CPU-second of rollout_batch at --batch on one thread (the median over rounds), its FLOP/s
+* batched, per precision (fp32, and bf16 where the CPU has bf16 arithmetic or --precisions asks for it):
+  trajectories per CPU-second of rollout_batch at --batch on one thread (the median over rounds), its FLOP/s
   (FLOPs of the matrix products per roll-out, from the model's layer sizes: elementwise work not counted) as a
-  fraction of the peak, and the same per core against pybullet; also the model's roll-out alone
-  (DynamicsModel.rollout_raw: no input checks, frames or integration) as kernel_fraction_of_peak;
-  --batch-threads > 1 adds a multi-thread line.
-* peak: a plain 1024^3 fp32 matmul (torch) on one thread, best of 3 just before and 3 just after each round's
-  batch; each round's fraction of peak uses that round's peak, and the median over rounds is reported.
+  fraction of that precision's matmul peak, the same per core against pybullet; the model's roll-out alone
+  (DynamicsModel.rollout_raw: no input checks, frames, topple head or integration) likewise; and the LSTM's two
+  matrix products of one step at --batch alone (lstm_products_ms: the kernel's shapes), so that the kernel's
+  time splits into products and elementwise work. --batch-threads > 1 adds a multi-thread line.
+* peaks: a plain 1024^3 matmul (torch) in fp32 and in bf16 on one thread, best of 3 just before and 3 just after
+  each round's batch of that precision; each round's fraction of peak uses that round's peak, the median over
+  rounds is reported.
 * msg_build_ms: physdyn_ros.ros.trajectory_to_msg of a 60-step trajectory (61 states), p50.
-Goals: batch-1 roll-out >= 5x faster than a pybullet push; batched >= 60 % of the fp32 matmul peak and
->= 60x pybullet per core.
+The headline figures are those of the precision the Predictor uses at --batch (--precision, default auto: bf16
+where the CPU has bf16 arithmetic). Goals: on a CPU with bf16 arithmetic batched roll-outs >= 60x pybullet per
+core and >= 50 % of the bf16 matmul peak; batch 1 >= 5x faster than a pybullet push on every CPU.
 The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms (wall),
 pybullet_push_cpu_ms, b1_speedup_vs_pybullet, batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core,
-matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak, kernel_fraction_of_peak, mflop_per_rollout,
-msg_build_ms (and batch, horizon, precision, threads). A figure that could not be measured (no pybullet, no rclpy)
-is null, never a traceback.
+matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak, kernel_fraction_of_peak (of the precision
+used), mflop_per_rollout, msg_build_ms, precision (used), cpu_flags, bf16_arithmetic, per_precision (each
+precision's batched, kernel and product figures and its peak), batch, horizon, threads. A figure that could not
+be measured (no pybullet, no rclpy, no bf16 run) is null, never a traceback.
 Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
 does not depend on the weights.
 """
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import sys
@@ -196,18 +207,42 @@ def b1_parts(pred: Any, codes: list, cases: list, horizon: int) -> list:
             return pred._model.rollout_arrays(feats[k:k + 1], v[k:k + 1], w[k:k + 1], horizon)
 
         def head(k: int = k, c: Any = code) -> Any:
+            assert topple is not None  # only timed for models with the head
             return topple.assess(c.feature[None, :dim], c.feature[None, dim:], v[k:k + 1].astype(np.float64),
                                  w[k:k + 1].astype(np.float64))
         parts.append((model, None if topple is None else head))
     return parts
 
 
-def kernel_rollout(pred: Any, inputs: tuple, horizon: int) -> Any:
+def kernel_rollout(pred: Any, inputs: tuple, horizon: int, precision: str = "fp32") -> Any:
     """DynamicsModel.rollout_raw alone (no input checks, frames or integration): the roll-out kernel."""
     import torch
 
     with torch.inference_mode():
-        return pred._model.rollout_raw(*inputs, horizon)
+        return pred._model.rollout_raw(*inputs, horizon, precision=precision)
+
+
+def lstm_products(pred: Any, batch: int, precision: str) -> Optional[Any]:
+    """A timer of the LSTM's matrix products of one step at `batch` rows in the kernel's shapes and precision
+    (fp32: fused_lstm_rollout's addmm per layer; bf16: bf16_lstm_rollout's plain products), or None for a
+    model without LSTM kernels."""
+    import torch
+
+    with torch.inference_mode():
+        kernel = pred._model._kernel(pred._model._fast()) if pred._model.cfg.cell == "lstm" else {}
+    if precision == "bf16" and "bf16_w" in kernel:
+        weights = kernel["bf16_w"]
+        rows = [torch.randn(batch, w.shape[0]).to(torch.bfloat16) for w in weights]
+        outs = [torch.empty(batch, w.shape[1], dtype=torch.bfloat16) for w in weights]
+        return lambda: [torch.mm(a, w, out=o) for a, w, o in zip(rows, weights, outs)]
+    if precision == "fp32" and "w" in kernel:
+        weights, biases = kernel["w"], kernel["b"]
+        rows = [torch.randn(batch, w.shape[0]) for w in weights]
+        outs = [torch.empty(batch, w.shape[1]) for w in weights]
+        const0 = torch.randn(batch, weights[0].shape[1])  # layer 0's per-row bias (with the feature term)
+        return lambda: [torch.addmm(const0 if i == 0 else b, a, w, out=o)
+                        for i, (a, w, b, o) in enumerate(zip(rows, weights, biases, outs))]
+    return None
 
 
 def msg_build_samples(traj: Any, repeats: int) -> Optional[list[float]]:
@@ -232,10 +267,15 @@ def main() -> int:
     ap.add_argument("--batch-threads", type=int, default=1,
                     help="also time the batch on this many threads (default 1: only the one-thread figure)")
     ap.add_argument("--pybullet-trajectories", type=int, default=48, help="pushes simulated (split over the rounds)")
+    ap.add_argument("--precision", default="auto", help="the Predictor's precision: auto (default), fp32, bf16")
+    ap.add_argument("--precisions", default=None,
+                    help="comma-separated precisions to time batched (default: fp32, and bf16 where the CPU has "
+                         "bf16 arithmetic; bf16 on a CPU without it is emulated, slower)")
     args = ap.parse_args()
 
     import torch
 
+    from physdyn_ros.learn.kernels import REPORTED_FLAGS, check_precision, cpu_flags, cpu_has_bf16
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.resources import DEFAULT_MODEL
 
@@ -249,13 +289,26 @@ def main() -> int:
         model_path = str(Path(tmp.name) / "random.pt")
         random_weights_checkpoint(ROOT / "config" / "model_default.yaml", Path(model_path))
         note = " (no shipped model: default architecture, random weights)"
-    pred = Predictor.load(model_path, threads=1)
+    pred = Predictor.load(model_path, threads=1, precision=args.precision)
     cfg = pred._model.cfg
-    dtype = next(pred._model.parameters()).dtype
     flops = rollout_flops(cfg, args.horizon)
-    precision = str(dtype).replace("torch.", "")
+    bf16_cpu = cpu_has_bf16()
+    flags = [f for f in REPORTED_FLAGS if f in cpu_flags()]
+    precisions = (["fp32", "bf16"] if bf16_cpu else ["fp32"]) if args.precisions is None else \
+        [check_precision(x.strip()) for x in args.precisions.split(",") if x.strip()]
+    used = pred.batch_precision(args.batch)
+    if used not in precisions:
+        precisions.append(used)
+    dtypes = {"fp32": torch.float32, "bf16": torch.bfloat16}
+    twins = {}  # one Predictor per timed precision, sharing the model
+    for prec in precisions:
+        twins[prec] = copy.copy(pred)
+        twins[prec].precision = prec
     print(f"model {pred.model_id}{note}; torch {torch.__version__}, numpy {np.__version__}, {os.cpu_count()} CPU(s); "
-          f"{precision}; {flops / 1e6:.2f} MFLOP per {args.horizon}-step roll-out")
+          f"{flops / 1e6:.2f} MFLOP per {args.horizon}-step roll-out")
+    print(f"CPU flags: {' '.join(flags) or '(none of ' + ', '.join(REPORTED_FLAGS) + ')'}; bf16 arithmetic: "
+          f"{'yes' if bf16_cpu else 'no'}; precision {args.precision}: batches of {args.batch} run in {used}; "
+          f"timed: {', '.join(precisions)}; batch 1 runs in fp32 (the numpy kernel)")
     if os.environ.get("OPENBLAS_CORETYPE"):
         print(f"note: OPENBLAS_CORETYPE={os.environ['OPENBLAS_CORETYPE']} (numpy's BLAS: the batch-1 path)")
 
@@ -270,7 +323,12 @@ def main() -> int:
         print(f"pybullet baseline unavailable: {pyb.error}")
     for i in range(10):  # warm-up
         pred.rollout(codes[i % 16], cases[i % 16]["lin_vel"], cases[i % 16]["ang_vel"], args.horizon)
-    pred.rollout_batch(shapes, bv, bw, args.horizon)
+    kernel_in = kernel_inputs(pred, shapes, bv, bw)
+    products = {prec: lstm_products(pred, args.batch, prec) for prec in precisions}
+    for prec in precisions:  # TorchScript optimises a function on its first calls
+        for _ in range(2):
+            twins[prec].rollout_batch(shapes, bv, bw, args.horizon)
+            kernel_rollout(pred, kernel_in, args.horizon, prec)
     if pyb.sim is not None:
         pyb.push(cases[0])
 
@@ -278,15 +336,11 @@ def main() -> int:
     full: list[float] = []
     pyb_times: list[float] = []
     pyb_cpu: list[float] = []
-    batched_rates: list[float] = []
-    peaks: list[float] = []
-    fractions: list[float] = []
-    kernel_fractions: list[float] = []
-    kernel_in = kernel_inputs(pred, shapes, bv, bw)
+    per: dict[str, dict[str, list[float]]] = {prec: {"rate": [], "kernel_rate": [], "peak": [], "fraction": [],
+                                                     "kernel_fraction": [], "products": []} for prec in precisions}
     parts = b1_parts(pred, codes[:16], cases[:16], args.horizon)
     lat_model: list[float] = []
     lat_head: list[float] = []
-    kernel_rollout(pred, kernel_in, args.horizon)
     per_round = max(1, args.repeats // rounds)
     pushes = max(1, args.pybullet_trajectories // rounds)
     for r in range(rounds):
@@ -308,27 +362,29 @@ def main() -> int:
             k = i % 16
             full.append(_timed(lambda: pred.rollout(cases[k]["cloud"], cases[k]["lin_vel"], cases[k]["ang_vel"],
                                                     args.horizon)))
-        # the batch between two peak measurements; the round's peak is the better of the two
-        peak = matmul_peak(dtype)
-        t = _cpu_timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon))
-        t_kernel = _cpu_timed(lambda: kernel_rollout(pred, kernel_in, args.horizon))
-        peak = max(peak, matmul_peak(dtype))
-        rate = args.batch / t
-        peaks.append(peak)
-        batched_rates.append(rate)
-        fractions.append(rate * flops / 1e9 / peak)
-        kernel_fractions.append(args.batch / t_kernel * flops / 1e9 / peak)
-        print(f"round {r + 1}/{rounds}: batch-1 p50 {pct(lat[-per_round:], 50):.2f} ms"
-              + (f", pybullet {pct(pyb_times[-pushes:], 50):.1f} ms/push" if pyb_times else "")
-              + f", matmul {peak:.1f} GFLOP/s, batch {args.batch} {rate:.0f} traj/s ({fractions[-1]:.0%} of peak; "
-              f"model alone {kernel_fractions[-1]:.0%})")
+        line = [f"round {r + 1}/{rounds}: batch-1 p50 {pct(lat[-per_round:], 50):.2f} ms"
+                + (f", pybullet {pct(pyb_times[-pushes:], 50):.1f} ms/push" if pyb_times else "")]
+        for prec in precisions:
+            # the batch between two peak measurements of its precision; the round's peak is the better of the two
+            f = per[prec]
+            peak = matmul_peak(dtypes[prec])
+            t = _cpu_timed(lambda: twins[prec].rollout_batch(shapes, bv, bw, args.horizon))
+            t_kernel = _cpu_timed(lambda: kernel_rollout(pred, kernel_in, args.horizon, prec))
+            if products[prec] is not None:
+                f["products"].append(min(_cpu_timed(products[prec]) for _ in range(5)))
+            peak = max(peak, matmul_peak(dtypes[prec]))
+            f["peak"].append(peak)
+            f["rate"].append(args.batch / t)
+            f["kernel_rate"].append(args.batch / t_kernel)
+            f["fraction"].append(args.batch / t * flops / 1e9 / peak)
+            f["kernel_fraction"].append(args.batch / t_kernel * flops / 1e9 / peak)
+            line.append(f"{prec}: matmul {peak:.0f} GFLOP/s, batch {args.batch} {f['rate'][-1]:.0f} traj/s "
+                        f"({f['fraction'][-1]:.0%} of peak; model alone {f['kernel_fraction'][-1]:.0%})")
+        print("; ".join(line))
 
     p50, p99 = pct(lat, 50), pct(lat, 99)
     pyb_ms = pct(pyb_times, 50) if pyb_times else None
-    rate = float(np.median(batched_rates))
-    peak = float(max(peaks))
-    fraction = float(np.median(fractions))
-    kernel_fraction = float(np.median(kernel_fractions))
+    pyb_cpu_s = float(np.median(pyb_cpu)) if pyb_cpu else None
     print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms "
           "(Predictor.rollout: the shape feature is encoded once per object, not counted)")
     print(f"  of which the model's roll-out alone (numpy kernel + sliding prior): p50 {pct(lat_model, 50):.2f} ms"
@@ -336,32 +392,57 @@ def main() -> int:
           + "; the rest: input checks, frames, consistency rules, integration")
     print(f"latency, encode ({len(cases[0]['cloud'])} points) + roll-out:        p50 {pct(full, 50):.2f} ms, "
           f"p99 {pct(full, 99):.2f} ms")
-    b1_speedup = pyb_speedup = ceiling_speedup = needed_fraction = None
-    ceiling_rate = peak * 1e9 / flops  # trajectories/s if every FLOP of the products ran at the matmul peak
+    b1_speedup = None
     if pyb_ms is not None:
         b1_speedup = pyb_ms / p50
-        pyb_speedup = rate * float(np.median(pyb_cpu))
-        ceiling_speedup = ceiling_rate * float(np.median(pyb_cpu))
-        needed_fraction = 60.0 / float(np.median(pyb_cpu)) / ceiling_rate
         print(f"pybullet (simulate_from_state, convex hull, {pyb.config.physics_hz} Hz, 1 thread): {pyb_ms:.2f} ms "
               f"per push ({1e3 / pyb_ms:.0f} trajectories/s); batch-1 roll-out {b1_speedup:.1f}x faster "
               f"(goal >= 5x: {'met' if b1_speedup >= 5 else 'NOT met'})")
-    print(f"batched roll-outs, batch {args.batch}, 1 thread: {rate:.0f} trajectories/s = {rate * flops / 1e9:.1f} "
-          f"GFLOP/s, {fraction:.0%} of the {precision} matmul peak {peak:.1f} GFLOP/s (goal >= 60 %: "
-          f"{'met' if fraction >= 0.6 else 'NOT met'}; the model alone {kernel_fraction:.0%})"
-          + (f"; {pyb_speedup:.0f}x pybullet per core (goal >= 60x: {'met' if pyb_speedup >= 60 else 'NOT met'})"
-             if pyb_speedup is not None else ""))
-    if ceiling_speedup is not None:
-        print(f"ceiling at the {precision} peak: {peak:.1f} GFLOP/s / {flops / 1e6:.2f} MFLOP per roll-out = "
-              f"{ceiling_rate:.0f} trajectories/s = {ceiling_speedup:.0f}x pybullet per core "
-              f"({1e3 * float(np.median(pyb_cpu)):.1f} ms CPU per push); 60x would need {needed_fraction:.0%} of the "
-              "peak" + (" (more than the peak: out of reach in this precision on this CPU)" if needed_fraction > 1
-                        else ""))
+    summary: dict[str, dict[str, Any]] = {}
+    r3 = lambda x: None if x is None else round(float(x), 3)  # noqa: E731
+    for prec in precisions:
+        f = per[prec]
+        rate, kernel_rate = float(np.median(f["rate"])), float(np.median(f["kernel_rate"]))
+        peak, fraction = float(max(f["peak"])), float(np.median(f["fraction"]))
+        kernel_fraction = float(np.median(f["kernel_fraction"]))
+        ceiling_rate = peak * 1e9 / flops  # trajectories/s if every FLOP of the products ran at the matmul peak
+        prod_ms = 1e3 * float(np.median(f["products"])) if f["products"] else None
+        speedup = rate * pyb_cpu_s if pyb_cpu_s else None
+        kernel_speedup = kernel_rate * pyb_cpu_s if pyb_cpu_s else None
+        goals = ""
+        if prec == "bf16" and bf16_cpu:
+            goals = (f" (goals >= 50 % of peak: {'met' if fraction >= 0.5 else 'NOT met'}"
+                     + (f", >= 60x pybullet: {'met' if speedup >= 60 else 'NOT met'}" if speedup else "") + ")")
+        print(f"batched roll-outs in {prec}, batch {args.batch}, 1 thread: {rate:.0f} trajectories/s = "
+              f"{rate * flops / 1e9:.1f} GFLOP/s, {fraction:.0%} of the {prec} matmul peak {peak:.0f} GFLOP/s"
+              + (f"; {speedup:.0f}x pybullet per core" if speedup else "") + goals)
+        print(f"  the model alone (rollout_raw): {kernel_rate:.0f} trajectories/s, {kernel_fraction:.0%} of the peak"
+              + (f", {kernel_speedup:.0f}x pybullet per core" if kernel_speedup else "")
+              + (f"; its LSTM products alone {prod_ms:.2f} ms per step = "
+                 f"{args.horizon * prod_ms / (1e3 * args.batch / kernel_rate):.0%} of its time over {args.horizon} "
+                 "steps" if prod_ms else "")
+              + (f"; ceiling at the peak {ceiling_rate:.0f} trajectories/s = {ceiling_rate * pyb_cpu_s:.0f}x pybullet"
+                 if pyb_cpu_s else ""))
+        summary[prec] = {"batched_traj_per_s_1thread": r3(rate), "batched_gflops_1thread": r3(rate * flops / 1e9),
+                         "batched_fraction_of_peak": r3(fraction), "batched_speedup_vs_pybullet_per_core": r3(speedup),
+                         "kernel_traj_per_s_1thread": r3(kernel_rate), "kernel_fraction_of_peak": r3(kernel_fraction),
+                         "kernel_speedup_vs_pybullet_per_core": r3(kernel_speedup), "matmul_gflops_1thread": r3(peak),
+                         "lstm_products_ms_per_step": r3(prod_ms), "ceiling_traj_per_s_1thread": r3(ceiling_rate)}
+    if len(precisions) > 1 and "fp32" in summary:
+        for prec in precisions:
+            if prec != "fp32":
+                a, b = summary["fp32"], summary[prec]
+                ratio = lambda key: b[key] / a[key]  # noqa: E731
+                step = a["lstm_products_ms_per_step"], b["lstm_products_ms_per_step"]
+                print(f"{prec} against fp32, side by side: batched {ratio('batched_traj_per_s_1thread'):.2f}x, the "
+                      f"model alone {ratio('kernel_traj_per_s_1thread'):.2f}x, matmul peak "
+                      f"{ratio('matmul_gflops_1thread'):.2f}x"
+                      + (f", the LSTM products of a step {step[0] / step[1]:.2f}x" if all(step) else ""))
     if args.batch_threads > 1:
         torch.set_num_threads(args.batch_threads)
         pred.rollout_batch(shapes, bv, bw, args.horizon)
         t = min(_timed(lambda: pred.rollout_batch(shapes, bv, bw, args.horizon)) for _ in range(rounds))
-        print(f"batched roll-outs, batch {args.batch}, {args.batch_threads} threads: {args.batch / t:.0f} "
+        print(f"batched roll-outs in {used}, batch {args.batch}, {args.batch_threads} threads: {args.batch / t:.0f} "
               f"trajectories/s (wall clock)")
         torch.set_num_threads(1)
     traj = pred.rollout(codes[0], cases[0]["lin_vel"], cases[0]["ang_vel"], args.horizon)
@@ -372,19 +453,20 @@ def main() -> int:
     pyb.close()
     if tmp is not None:
         tmp.cleanup()
-    r3 = lambda x: None if x is None else round(float(x), 3)  # noqa: E731
+    head = summary[used]
     print(json.dumps({
         "rollout_b1_p50_ms": r3(p50), "rollout_b1_p99_ms": r3(p99), "pybullet_push_ms": r3(pyb_ms),
         "pybullet_push_cpu_ms": r3(pct(pyb_cpu, 50) if pyb_cpu else None),
-        "b1_speedup_vs_pybullet": r3(b1_speedup), "batched_traj_per_s_1thread": r3(rate),
-        "batched_speedup_vs_pybullet_per_core": r3(pyb_speedup), "matmul_gflops_1thread": r3(peak),
-        "batched_gflops_1thread": r3(rate * flops / 1e9), "batched_fraction_of_peak": r3(fraction),
-        "kernel_fraction_of_peak": r3(kernel_fraction),
-        "mflop_per_rollout": r3(flops / 1e6), "rollout_b1_model_p50_ms": r3(pct(lat_model, 50)),
-        "topple_head_b1_p50_ms": r3(pct(lat_head, 50) if lat_head else None),
-        "ceiling_traj_per_s_1thread": r3(ceiling_rate), "ceiling_speedup_vs_pybullet_per_core": r3(ceiling_speedup),
-        "fraction_of_peak_needed_for_60x": r3(needed_fraction), "msg_build_ms": r3(msg_ms), "batch": args.batch,
-        "horizon": args.horizon, "precision": precision, "threads": 1}))
+        "b1_speedup_vs_pybullet": r3(b1_speedup), "batched_traj_per_s_1thread": head["batched_traj_per_s_1thread"],
+        "batched_speedup_vs_pybullet_per_core": head["batched_speedup_vs_pybullet_per_core"],
+        "matmul_gflops_1thread": head["matmul_gflops_1thread"],
+        "batched_gflops_1thread": head["batched_gflops_1thread"],
+        "batched_fraction_of_peak": head["batched_fraction_of_peak"],
+        "kernel_fraction_of_peak": head["kernel_fraction_of_peak"], "mflop_per_rollout": r3(flops / 1e6),
+        "rollout_b1_model_p50_ms": r3(pct(lat_model, 50)),
+        "topple_head_b1_p50_ms": r3(pct(lat_head, 50) if lat_head else None), "msg_build_ms": r3(msg_ms),
+        "precision": used, "precision_setting": args.precision, "cpu_flags": flags, "bf16_arithmetic": bf16_cpu,
+        "per_precision": summary, "batch": args.batch, "horizon": args.horizon, "threads": 1}))
     return 0
 
 

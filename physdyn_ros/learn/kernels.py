@@ -32,16 +32,16 @@ OUT_DIM = 13
 #: the L2 cache; larger batches run block after block.
 KERNEL_ROWS = 256
 #: Rows per call of the bf16 kernel: oneDNN's bf16 product costs a fixed preparation per call (the weights'
-#: reorder into its blocked layout), which 1024 rows amortise; 512 or 256 rows are slower per row (measured:
-#: bench/bench_predictor.py's kernel figures).
+#: reorder into its blocked layout), which 1024 rows amortise (the products of one step at 512 rows cost 1.2x
+#: their time at 1024 per row); its elementwise work runs KERNEL_ROWS rows at a time.
 BF16_ROWS = 1024
 #: Roll-out precisions: "auto" picks bf16 where the CPU has bf16 arithmetic (cpu_has_bf16) and the batch has at
 #: least AUTO_BF16_ROWS rows, else fp32; "fp32" and "bf16" force one.
 PRECISIONS = ("auto", "fp32", "bf16")
 #: The smallest batch "auto" runs in bf16: below it the bf16 kernel is no faster than the float32 one (the fixed
-#: cost of oneDNN's bf16 product per call outweighs its arithmetic; measured on one Sapphire Rapids core, 60 steps:
-#: 16 rows 0.74x, 64 rows 0.90x, 128 rows 1.09x, 256 rows 1.38x, 1024 rows 1.96x the float32 kernel's speed), so
-#: small batches keep their float32 results.
+#: cost of oneDNN's bf16 product per call outweighs its arithmetic; measured on one Sapphire Rapids core, the
+#: shipped model, 60 steps: 16 rows 0.72x, 64 rows 0.88x, 128 rows 1.11x, 256 rows 1.41x, 1024 rows 2.34x the
+#: float32 kernel's speed), so small batches keep their float32 results.
 AUTO_BF16_ROWS = 128
 #: CPU flags (as /proc/cpuinfo and lscpu name them) of bf16 arithmetic: AVX-512 BF16 dot products, AMX tiles.
 BF16_FLAGS = ("avx512_bf16", "amx_bf16")
@@ -350,7 +350,7 @@ def fused_lstm_rollout(x0: Tensor, x_obs: Tensor, const0: Tensor, w: List[Tensor
 
 def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor], w_out: Tensor, w_skip: Tensor,
                       b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
-                      scale_out: Tensor) -> Tuple[Tensor, Tensor]:
+                      scale_out: Tensor, chunk: int = 256) -> Tuple[Tensor, Tensor]:
     """fused_lstm_rollout with its matrix products in bfloat16 (fp32 accumulation inside oneDNN) and everything
     that carries state in float32: the gates after their sigmoid, the cell state, the head's input-skip term,
     the prior and the integration of x. Only what enters a product is rounded to bf16: the row buffer and the
@@ -362,7 +362,10 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
     of the product either). The products' outputs come back in bf16 (torch has no bf16 x bf16 -> fp32 product
     on the CPU) and are widened to fp32 before the sigmoid: a forget gate near 1 rounded to bf16 would be up to
     2^-9 off, and the cell state would forget too fast or too slowly over a long roll-out. Gates as
-    fused_lstm_rollout's (g columns doubled, c' = -2 c); the hidden states go straight into z in bf16.
+    fused_lstm_rollout's (g columns doubled, c' = -2 c); the hidden states go straight into z in bf16. The
+    products run over all rows at once (oneDNN's bf16 product amortises its per-call preparation over many rows),
+    the gates' elementwise work over `chunk` rows at a time through one float32 buffer that stays in the L2
+    cache (the gates of 1024 rows in float32, 2 MB, would not).
 
     Args:
         x0, x_obs, gain, steps, prior, scale_in, scale_out: as lstm_rollout (float32).
@@ -372,6 +375,7 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
         w_out: (H, 13) bf16, the head on the last layer's h.
         w_skip: (6, 13) float32 input skip (multiplied with the float32 x), or empty (0, 13).
         b_head: (13,) float32.
+        chunk: rows of the gates' elementwise work at a time.
 
     Returns:
         Raw outputs (B, steps, 13) and the inputs used (B, steps + 1, 6), float32.
@@ -380,6 +384,7 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
     layers = len(w)
     hidden = w[layers - 1].shape[1] // 4
     features = feature.shape[1]
+    chunk = max(1, min(chunk, batch))
     low = w[0].dtype
     device = x0.device
     z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low, device=device)
@@ -397,13 +402,21 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
         hs.append(z[:, lo:lo + hidden])
         zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
     g = torch.empty(batch, 4 * hidden, dtype=low, device=device)
-    s = torch.empty(batch, 4 * hidden, dtype=x0.dtype, device=device)
-    sc = torch.empty(batch, hidden, dtype=x0.dtype, device=device)
     yh = torch.empty(batch, w_out.shape[1], dtype=low, device=device)
-    s_i = s[:, :hidden]
-    s_f = s[:, hidden:2 * hidden]
-    s_o = s[:, 2 * hidden:3 * hidden]
-    s_g = s[:, 3 * hidden:]
+    # per chunk of rows: the gates' rows, and per layer the cell state's and the hidden state's rows
+    starts = list(range(0, batch, chunk))
+    g_rows = [g[r:r + chunk] for r in starts]
+    c_rows = [[c[r:r + chunk] for r in starts] for c in cs]
+    h_rows = [[h[r:r + chunk] for r in starts] for h in hs]
+    s_all = torch.empty(chunk, 4 * hidden, dtype=x0.dtype, device=device)
+    sc_all = torch.empty(chunk, hidden, dtype=x0.dtype, device=device)
+    # views of the float32 buffers per chunk (the last may be shorter), made once: gates, then i, f, o, g
+    s_v = [s_all[:g_rows[j].shape[0]] for j in range(len(starts))]
+    sc_v = [sc_all[:g_rows[j].shape[0]] for j in range(len(starts))]
+    si_v = [v[:, :hidden] for v in s_v]
+    sf_v = [v[:, hidden:2 * hidden] for v in s_v]
+    so_v = [v[:, 2 * hidden:3 * hidden] for v in s_v]
+    sg_v = [v[:, 3 * hidden:] for v in s_v]
     ys = torch.empty(batch, steps, w_out.shape[1], dtype=x0.dtype, device=device)
     xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype, device=device)
     xs[:, 0] = x0
@@ -412,12 +425,15 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
     for t in range(steps):
         for layer in range(layers):
             torch.mm(zin[layer], w[layer], out=g)
-            s.copy_(g)
-            s.sigmoid_()
-            c = cs[layer]
-            c.mul_(s_f).addcmul_(s_i, s_g, value=-4.0).add_(s_i, alpha=2.0)
-            torch.sigmoid(c, out=sc)
-            torch.addcmul(s_o, s_o, sc, value=-2.0, out=hs[layer])
+            for j in range(len(starts)):
+                s = s_v[j]
+                s.copy_(g_rows[j])
+                s.sigmoid_()
+                s_i, s_o, sc = si_v[j], so_v[j], sc_v[j]
+                c = c_rows[layer][j]
+                c.mul_(sf_v[j]).addcmul_(s_i, sg_v[j], value=-4.0).add_(s_i, alpha=2.0)
+                torch.sigmoid(c, out=sc)
+                torch.addcmul(s_o, s_o, sc, value=-2.0, out=h_rows[layer][j])
         y = ys[:, t]
         torch.mm(hs[layers - 1], w_out, out=yh)
         if skip:
@@ -542,7 +558,8 @@ def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Te
         rows = BF16_ROWS
         parts = [bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], kernel["bf16_w"],
                                    kernel["bf16_out"], kernel["bf16_skip"], kernel["bf16_b_head"], kernel["gain"],
-                                   steps, prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out)
+                                   steps, prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out,
+                                   KERNEL_ROWS)
                  for i in range(0, x0.shape[0], rows)]
     elif precision == "fp32":
         const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])
