@@ -111,6 +111,8 @@ class PredictorNode(ManagedNode):
         declare(self, "model_path", "", "checkpoint, loaded on configure (cleanup, set, configure: another model); "
                 "empty = the shipped default model")
         declare(self, "device", "cpu", "torch device (read on configure)")
+        declare(self, "precision", "auto", "batched roll-outs (the planner's): auto = bf16 products where the CPU "
+                "has bf16 arithmetic (read on configure)", choices=("auto", "fp32", "bf16"))
         declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription; read on "
                 "configure)", low=1, high=256)
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
@@ -187,7 +189,7 @@ class PredictorNode(ManagedNode):
     # -------------------------------------------------------------------------------------------- lifecycle
     def configure(self) -> None:
         p = self._param
-        predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")))
+        predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")), p("precision"))
         if int(p("horizon")) > int(predictor.max_horizon):
             raise ValueError(f"parameter horizon {p('horizon')} exceeds the max_horizon {predictor.max_horizon} of "
                              f"model {predictor.model_id}")
@@ -327,10 +329,22 @@ class PredictorNode(ManagedNode):
             raise RequestError(f"shape feature points: {exc}") from None
         return pts if len(pts) >= 4 else None
 
+    def rest_cloud(self, object_id: str, pose: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
+        """The newest feature points of object_id whose pose when seen is known, moved to `pose` (a feature seen
+        mid-push is skipped: this node may not have the one seen at rest yet). None when there are none."""
+        with self._lock:
+            feats = list(self._features.get(object_id, ()))
+        for feat in reversed(feats):
+            cloud = self.feature_cloud(feat)
+            moved = None if cloud is None else self.repose(cloud, object_id, time_to_ns(feat.header.stamp), pose)
+            if moved is not None:
+                return moved
+        return None
+
     def repose(self, points: np.ndarray, object_id: str, t_ns: int, pose: tuple[np.ndarray, np.ndarray]
-               ) -> np.ndarray:
-        """Points observed at t_ns moved with the object to `pose` (position, quaternion): the object_state at
-        t_ns says where it was then (a feature from before the last push still gives the right surface)."""
+               ) -> np.ndarray | None:
+        """Points observed at t_ns moved with the object to `pose` (position, quaternion) from where its object_state
+        says it was then; None when it was moving then (its pose at t_ns is unknown)."""
         from scipy.spatial.transform import Rotation
 
         then, exact = self.state_at(object_id, t_ns)
@@ -338,7 +352,7 @@ class PredictorNode(ManagedNode):
             return points
         lin, ang = twist_to_numpy(then.twist)
         if not exact and (np.linalg.norm(lin) >= REST_LIN_VEL or np.linalg.norm(ang) >= REST_ANG_VEL):
-            return points  # the object moved between that state and the cloud: its pose then is unknown
+            return None  # the object moved between that state and the cloud: its pose then is unknown
         p0, q0 = pose_to_numpy(then.pose, zero_is_identity=True)
         rot = Rotation.from_quat(pose[1]) * Rotation.from_quat(q0).inv()
         return rot.apply(points - p0) + pose[0]

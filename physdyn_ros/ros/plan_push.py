@@ -129,11 +129,9 @@ def answer(node: Any, req: PlanPush.Request, res: PlanPush.Response) -> PlanPush
         if req.start_from_object_state and latest is not None:
             node.check_frame(latest.header.frame_id, "object_state")
         start, start_pose = start_of(req, latest, object_id)
-        if cloud is None:  # the feature's own points, when perception sent them: contacts on the surface
-            feat = node.select_feature(object_id, None)
-            cloud = node.feature_cloud(feat)
-            if cloud is not None:
-                cloud = node.repose(cloud, object_id, time_to_ns(feat.header.stamp), start_pose)
+        if cloud is None:  # the features' own points, when perception sent them: contacts on the surface
+            node.select_feature(object_id, None)  # the newest must be usable (model, frame, width)
+            cloud = node.rest_cloud(object_id, start_pose)
         if req.mass > 0:
             check_mass(req.mass, cloud if cloud is not None else shape)
         plan = node.planner.plan(shape if shape is not None else cloud, start, goal, cloud=cloud,
