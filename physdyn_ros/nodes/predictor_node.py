@@ -17,14 +17,12 @@ Inputs
   shape_feature   (ShapeFeature)   from the perception node; the last few per object are kept
   initial_twist   (TwistStamped)   velocities right after a push, table frame; each one triggers a prediction
   object_state    (ObjectState)    the object's pose over time (tracker or sim): gives the pose at the push
-  observed_state  (ObjectState)    observed states after the push, used when steps_in > 0 to refine the
-                                   prediction (the paper's "steps in": adapts to the real friction)
+  observed_state  (ObjectState)    observed states after the push: steps_in > 0 refines the prediction with them
 Outputs (reliable, transient local, depth 1: the latest prediction reaches late joiners)
   predicted_trajectory (PredictedTrajectory), predicted_path (nav_msgs/Path), predicted_markers (MarkerArray)
 Services
   predict_trajectory (PredictTrajectory): a one-off roll-out for a cloud or a known object_id.
-  plan_push (PlanPush): the push (velocity, impulse, contact point) that brings an object to a goal pose
-                        (physdyn_ros.planning: CEM over batched roll-outs, bounded by plan_time_budget).
+  plan_push (PlanPush): the push that brings an object to a goal pose (physdyn_ros.planning, ros/plan_push.py).
 
 A managed (lifecycle) node, see physdyn_ros/ros/lifecycle.py: the model and the planner are loaded on configure
 and released on cleanup; publishers, services and the refinement timer exist from configure to cleanup,

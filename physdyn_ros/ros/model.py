@@ -45,9 +45,11 @@ def check_device(device: str) -> None:
         raise ModelLoadError(f"device {device!r}: only cpu and cuda devices are supported")
 
 
-def load_predictor(node: Node, model_path: str, device: str, num_threads: int) -> "Predictor":
-    """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads) and its warm-up
-    roll-outs done before the first request. Raises ModelLoadError with the reason."""
+def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
+                   precision: str = "auto") -> "Predictor":
+    """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads), the precision of
+    its batched roll-outs (auto, fp32, bf16) and its warm-up roll-outs done before the first request. Raises
+    ModelLoadError with the reason."""
     from ..predictor import Predictor
 
     t0 = time.monotonic()
@@ -55,9 +57,11 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int) -
     check_device(device)
     try:
         # Explicit threads: torch would otherwise start one per core in every node and oversubscribe the machine.
-        predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)))
+        predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)),
+                                   precision=precision)
     except Exception as exc:  # noqa: BLE001 - missing, corrupt or incompatible: the node refuses to start
         raise ModelLoadError(f"cannot load model from {where}: {exc}") from exc
     node.get_logger().info(f"model {predictor.model_id} loaded from {predictor.path} on {device} "
-                           f"({num_threads} torch threads) in {time.monotonic() - t0:.2f} s")
+                           f"({num_threads} torch threads, large batches in {predictor.batch_precision(1 << 20)}) "
+                           f"in {time.monotonic() - t0:.2f} s")
     return predictor
