@@ -21,7 +21,7 @@ roll-out precision the CPU has.
 Everything that is compared is measured in the same process, interleaved in --rounds rounds (a shared machine's
 load then weighs on both sides of a ratio alike), with torch on one thread:
 * CPU: the flags the kernels' libraries can use (avx2, fma, avx512f, avx512_bf16, amx_tile, amx_bf16, as lscpu
-  names them) and whether the CPU has bf16 arithmetic (learn/kernels.cpu_has_bf16).
+  names them) and whether the CPU has bf16 arithmetic (learn/precision.cpu_has_bf16).
 * latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (Predictor.rollout: the ROS predictor's and
   planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud. Batch 1 runs the float32 numpy
   kernel in every precision, so it is one figure.
@@ -275,7 +275,7 @@ def main() -> int:
 
     import torch
 
-    from physdyn_ros.learn.kernels import REPORTED_FLAGS, check_precision, cpu_flags, cpu_has_bf16
+    from physdyn_ros.learn.precision import REPORTED_FLAGS, check_precision, cpu_flags, cpu_has_bf16
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.resources import DEFAULT_MODEL
 

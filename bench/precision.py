@@ -1,4 +1,17 @@
 #!/usr/bin/env python3
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """The accuracy cost of bf16 roll-outs: the same held-out pushes rolled out in float32 and in bf16, side by side.
 
     .venv/bin/python bench/precision.py --data data/pybullet_test [--data DIR ...] [--max-pushes N]
@@ -130,7 +143,7 @@ def main() -> int:
     import torch
 
     from physdyn_ros.learn.checkpoint import load_model
-    from physdyn_ros.learn.kernels import REPORTED_FLAGS, cpu_flags, cpu_has_bf16
+    from physdyn_ros.learn.precision import REPORTED_FLAGS, cpu_flags, cpu_has_bf16
     from physdyn_ros.resources import DEFAULT_MODEL
 
     torch.set_num_threads(args.threads)

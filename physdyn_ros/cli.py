@@ -36,7 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("physdyn_ros.learn.train", "train the dynamics model on a dataset"),
     "fit-topple": ("physdyn_ros.learn.topple_fit", "fit a checkpoint's whole-push topple head (frozen dynamics)"),
     "evaluate": ("physdyn_ros.learn.evaluate", "evaluate a checkpoint and the baselines on a test split"),
-    "predict": ("physdyn_ros.predictor", "roll out a checkpoint for one cloud and initial velocity"),
+    "predict": ("physdyn_ros.predict_cli", "roll out a checkpoint for one cloud and initial velocity"),
     "plan": ("physdyn_ros.planning.cli", "plan a push to a goal pose with the model; execute it in pybullet"),
     "up": ("physdyn_ros.launcher", "start the node suite (sim, perception, predictor) with config/ parameters"),
     "demo": ("physdyn_ros.demo", "start the suite, push objects, compare predicted and true motion"),

@@ -1,3 +1,16 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """Predictor: the learned dynamics model behind a small numpy API (torch inside; no rclpy, no pybullet).
 
     from physdyn_ros.predictor import Predictor
@@ -17,8 +30,6 @@ i.e. returned orientations are the rotation relative to the pose in which the cl
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -28,7 +39,6 @@ from typing import Any, Mapping, Optional, Sequence, Union
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import geometry as geo
 from .conventions import DT
 from .learn.frames import c_to_world, canonicalize_cloud, compose_rotations, world_to_c
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
@@ -193,7 +203,7 @@ class Predictor:
 
     def __init__(self, model: Any, checkpoint: Mapping[str, Any], device: str = "cpu", path: str = "",
                  precision: str = "auto") -> None:
-        from .learn.kernels import resolve_precision
+        from .learn.precision import resolve_precision
 
         self._model = model
         self._device = device
@@ -219,7 +229,7 @@ class Predictor:
 
     def batch_precision(self, rows: int) -> str:
         """"fp32" or "bf16": the precision of a roll-out of `rows` trajectories (1: always the float32 kernel)."""
-        from .learn.kernels import resolve_precision
+        from .learn.precision import resolve_precision
 
         if rows <= 1 or getattr(self._model.cfg, "cell", "lstm") != "lstm":
             return "fp32"
@@ -254,7 +264,7 @@ class Predictor:
             if not Path(path).is_file():
                 raise FileNotFoundError(f"no shipped model at {path}; train one with 'physdyn train --config "
                                         "config/model_default.yaml ...' and pass its model_best.pt")
-        from .learn.kernels import resolve_precision
+        from .learn.precision import resolve_precision
 
         resolve_precision(precision, device)  # refuse a wrong precision before loading anything
         if threads is not None:
@@ -552,46 +562,3 @@ def _read_ply(path: Path) -> np.ndarray:
     if declared is not None and declared != len(vertices):
         raise ValueError(f"{path}: the PLY header declares {declared} vertices, the file holds {len(vertices)}")
     return np.asarray(vertices, dtype=np.float64)
-
-
-# ---------------------------------------------------------------------------------------------------------- CLI
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cloud", required=True, help="object points in the table frame: .npy, .ply, .xyz/.txt/.csv")
-    parser.add_argument("--lin-vel", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="m/s, world")
-    parser.add_argument("--ang-vel", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"), help="rad/s, world")
-    parser.add_argument("--horizon", type=int, default=60, help="steps of 1/15 s (default 60 = 4 s)")
-    parser.add_argument("--position", nargs=3, type=float, default=None, metavar=("X", "Y", "Z"),
-                        help="start COM position (default: the cloud centroid)")
-    parser.add_argument("--orientation", nargs=4, type=float, default=None, metavar=("X", "Y", "Z", "W"),
-                        help="start orientation quaternion (default: identity)")
-    parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--json", action="store_true", help="print the whole trajectory as JSON")
-
-
-def run(args: argparse.Namespace) -> int:
-    pred = Predictor.load(args.model, device=args.device, threads=1)
-    cloud = load_cloud(args.cloud)
-    traj = pred.rollout(cloud, args.lin_vel, args.ang_vel, args.horizon, args.position, args.orientation)
-    if args.json:
-        print(json.dumps({"model_id": pred.model_id, "dt": traj.dt, "positions": traj.positions.tolist(),
-                          "orientations": traj.orientations.tolist(), "lin_vels": traj.lin_vels.tolist(),
-                          "ang_vels": traj.ang_vels.tolist(), "topple_prob": traj.topple_prob.tolist(),
-                          "novelty": None if math.isnan(traj.novelty) else traj.novelty}))
-        return 0
-    p, q = traj.positions[-1], traj.orientations[-1]
-    rot = geo.quat_to_matrix(q)
-    yaw = math.degrees(math.atan2(rot[1, 0], rot[0, 0]))  # heading of the object's x axis on the table
-    tilt = math.degrees(float(geo.up_tilt_angle(q)))
-    moved = np.linalg.norm(p - traj.positions[0])
-    print(f"model {pred.model_id}; {len(cloud)} points; {traj.horizon} steps = {traj.horizon * traj.dt:.2f} s")
-    print(f"final position    [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m  (moved {moved:.4f} m)")
-    print(f"final orientation [{q[0]:.4f}, {q[1]:.4f}, {q[2]:.4f}, {q[3]:.4f}] (x y z w); yaw {yaw:.1f} deg, "
-          f"tilt {tilt:.1f} deg")
-    print(f"final velocity    [{traj.lin_vels[-1][0]:.4f}, {traj.lin_vels[-1][1]:.4f}, {traj.lin_vels[-1][2]:.4f}] m/s")
-    print(f"topple probability {traj.topple_probability:.3f}")
-    if not math.isnan(traj.novelty):
-        note = "  (beyond 99.5 % of the training inputs: unlike what the model was fitted on)" if traj.novelty > 1 \
-            else ""
-        print(f"novelty {traj.novelty:.2f}{note}")
-    return 0

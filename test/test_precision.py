@@ -31,6 +31,7 @@ import pytest
 import torch
 
 from physdyn_ros.learn import kernels
+from physdyn_ros.learn import precision as prec
 
 FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
 AVX2_ONLY = frozenset({"fpu", "sse4_2", "avx", "avx2", "fma"})  # e.g. AMD Zen 3
@@ -41,7 +42,7 @@ MAX_MEDIAN_CM, MAX_P90_CM, MIN_AGREEMENT = 0.1, 0.3, 0.995
 
 
 def flags(monkeypatch: pytest.MonkeyPatch, reported: frozenset) -> None:
-    monkeypatch.setattr(kernels, "cpu_flags", lambda: reported)
+    monkeypatch.setattr(prec, "cpu_flags", lambda: reported)
 
 
 @pytest.fixture(scope="module")
@@ -74,18 +75,18 @@ def pushes(predictors):
 
 def test_auto_follows_the_cpu_flags_and_the_batch(monkeypatch):
     flags(monkeypatch, AVX2_ONLY)
-    assert not kernels.cpu_has_bf16()
-    assert kernels.resolve_precision("auto") == "fp32"
-    assert kernels.resolve_precision("auto", "cpu", 4096) == "fp32"
-    assert kernels.resolve_precision("bf16", "cpu", 8) == "bf16"  # forced: runs (emulated) on any CPU
+    assert not prec.cpu_has_bf16()
+    assert prec.resolve_precision("auto") == "fp32"
+    assert prec.resolve_precision("auto", "cpu", 4096) == "fp32"
+    assert prec.resolve_precision("bf16", "cpu", 8) == "bf16"  # forced: runs (emulated) on any CPU
     for reported in (SAPPHIRE_RAPIDS, AVX512_BF16_ONLY, AVX2_ONLY | {"amx_bf16"}):
         flags(monkeypatch, reported)
-        assert kernels.cpu_has_bf16()
-        assert kernels.resolve_precision("auto") == "bf16"
-        assert kernels.resolve_precision("auto", "cpu", kernels.AUTO_BF16_ROWS) == "bf16"
-        assert kernels.resolve_precision("auto", "cpu", kernels.AUTO_BF16_ROWS - 1) == "fp32"  # no faster there
-        assert kernels.resolve_precision("fp32", "cpu", 4096) == "fp32"
-        assert kernels.resolve_precision("auto", "cuda:0") == "fp32"  # the bf16 kernel is the CPU's
+        assert prec.cpu_has_bf16()
+        assert prec.resolve_precision("auto") == "bf16"
+        assert prec.resolve_precision("auto", "cpu", prec.AUTO_BF16_ROWS) == "bf16"
+        assert prec.resolve_precision("auto", "cpu", prec.AUTO_BF16_ROWS - 1) == "fp32"  # no faster there
+        assert prec.resolve_precision("fp32", "cpu", 4096) == "fp32"
+        assert prec.resolve_precision("auto", "cuda:0") == "fp32"  # the bf16 kernel is the CPU's
 
 
 def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
@@ -93,21 +94,21 @@ def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
 
     for bad in ("fp16", "float32", "", "BF16"):
         with pytest.raises(ValueError, match="precision must be one of auto, fp32, bf16"):
-            kernels.resolve_precision(bad)
+            prec.resolve_precision(bad)
         with pytest.raises(ValueError, match="precision must be one of"):
             Predictor.load(precision=bad)
     with pytest.raises(ValueError, match="bf16 runs on the CPU only"):
-        kernels.resolve_precision("bf16", "cuda")
+        prec.resolve_precision("bf16", "cuda")
 
 
 def test_the_flag_reader_reads_this_cpu():
-    reported = kernels.cpu_flags()
+    reported = prec.cpu_flags()
     assert isinstance(reported, frozenset)
     if Path("/proc/cpuinfo").is_file():
         text = Path("/proc/cpuinfo").read_text(errors="replace")
         line = next(x for x in text.splitlines() if x.startswith("flags"))
         assert reported == frozenset(line.split(":", 1)[1].split())
-        assert kernels.cpu_has_bf16() == any(f" {flag} " in f" {line} " for flag in ("avx512_bf16", "amx_bf16"))
+        assert prec.cpu_has_bf16() == any(f" {flag} " in f" {line} " for flag in ("avx512_bf16", "amx_bf16"))
 
 
 def test_bf16_kernel_is_compiled():
@@ -147,7 +148,7 @@ def test_auto_on_a_bf16_cpu_runs_large_batches_in_bf16(monkeypatch, predictors, 
     codes, v, w, _, _ = pushes
     flags(monkeypatch, SAPPHIRE_RAPIDS)
     auto, bf16, fp32 = predictors["auto"], predictors["bf16"], predictors["fp32"]
-    n = kernels.AUTO_BF16_ROWS
+    n = prec.AUTO_BF16_ROWS
     assert auto.batch_precision(n) == bf16.batch_precision(n) == "bf16" and auto.batch_precision(1) == "fp32"
     big = auto.rollout_batch(codes[:n], v[:n], w[:n], 30)
     assert np.array_equal(big.positions, bf16.rollout_batch(codes[:n], v[:n], w[:n], 30).positions)

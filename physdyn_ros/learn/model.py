@@ -1,3 +1,16 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
 """The dynamics network (Rempe et al. 2020): its config, its layers and its entry points.
 
     cloud (B, P, 3) in frame C --PointNet--> global feature --MLP--> shape feature f (B, F), once per object
@@ -25,8 +38,8 @@ import torch
 from torch import Tensor, nn
 
 from ..conventions import GRAVITY
-from .kernels import (OUT_DIM, fused_rollout, kernel_weights, lstm_rollout, lstm_weights, mlp_rollout, numpy_rollout,
-                      resolve_precision)
+from .kernels import OUT_DIM, fused_rollout, kernel_weights, lstm_rollout, lstm_weights, mlp_rollout, numpy_rollout
+from .precision import resolve_precision
 from .prior import MIN_RADIUS, prior_raw
 from .sections import known_keys
 from .topple import ToppleHead
@@ -338,7 +351,7 @@ class DynamicsModel(nn.Module):
             obs_vel, obs_angvel: optional (B, K, 3) observed states of frames 1..K, fed instead of the model's
                 own predictions ("steps in" = K + 1); both or neither.
             fast: the model's _fast() dict, when the caller has it.
-            precision: "fp32" (default), "bf16" or "auto" (kernels.resolve_precision: by the CPU's flags and the
+            precision: "fp32" (default), "bf16" or "auto" (precision.resolve_precision: by the CPU's flags and the
                 batch size) for the batched inference kernel; training (autograd), batch 1 and the MLP baseline
                 always run in the model's dtype.
 
