@@ -100,7 +100,7 @@ def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np
 
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
-        max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0) -> dict:
+        max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0, risk: dict | None = None) -> dict:
     """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator."""
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
@@ -112,6 +112,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
     if iterations:  # a fixed search, independent of the machine's load (for comparing planner variants)
         cfg = PlannerConfig(time_budget=60.0, samples=48, max_iterations=iterations,
                             max_topple_probability=max_topple, robust_candidates=robust)
+    cfg = replace(cfg, **(risk or {}))
     rows, times, contact_mm = [], [], []
     t0 = time.monotonic()
     with Simulator(SimConfig(friction=friction, collision="parts")) as sim:
@@ -205,6 +206,8 @@ def main() -> int:
     ap.add_argument("--friction", type=float, default=0.5, help="true friction of the simulated table")
     ap.add_argument("--friction-error", type=float, default=0.2, help="pybullet planner: relative friction error")
     ap.add_argument("--max-topple", type=float, default=0.35, help="planner max_topple_probability")
+    ap.add_argument("--pessimistic", type=int, choices=(0, 1), default=None,
+                    help="planner pessimistic: 1 holds the worst perturbed push to the limit (default: its own)")
     ap.add_argument("--skip-pybullet", action="store_true", help="no planner over the cloud's hull in pybullet")
     ap.add_argument("--skip-oracle", action="store_true", help="no planner over the true simulator (the ceiling)")
     ap.add_argument("--oracle-iterations", type=int, default=3,
@@ -224,18 +227,19 @@ def main() -> int:
 
     torch.set_num_threads(args.threads)
     cases = trials(args.trials, args.seed)
+    risk = {} if args.pessimistic is None else {"pessimistic": bool(args.pessimistic)}
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
-                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations)]
+                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk)]
     oracle = None
     if not args.skip_oracle:
         oracle = run("oracle", "oracle (true simulator)", cases, args.max_pushes, args.budget, args.friction,
-                     args.max_topple, args.robust_candidates, not args.no_adapt, args.oracle_iterations)
+                     args.max_topple, args.robust_candidates, not args.no_adapt, args.oracle_iterations, risk)
         results.append(oracle)
     if not args.skip_pybullet:
         with PybulletModel(friction=args.friction * (1 + args.friction_error)) as pb:
             results.append(run(pb, f"pybullet hull, mu +{100 * args.friction_error:.0f}%", cases, args.max_pushes,
                                args.budget, args.friction, args.max_topple, args.robust_candidates,
-                               not args.no_adapt, args.iterations))
+                               not args.no_adapt, args.iterations, risk))
     print(f"\n{args.trials} trials (goal 8-22 cm away, yaw change up to 45 deg; success: within 2 cm and 10 deg, "
           f"upright); planning budget {args.budget} s per push, {args.threads} thread(s)")
     print(f"| planner model | success, 1 push | success, <= {args.max_pushes} pushes | planning time per push "
@@ -272,6 +276,7 @@ def main() -> int:
            "out_of_pushes": learned["outcomes"].get("out_of_pushes", 0),
            "contact_surface_max_mm": round(learned["contact_max_mm"], 3),
            "groups": {g: {k: round(v, 3) for k, v in d.items()} for g, d in learned["groups"].items()},
+           "pessimistic": bool(risk.get("pessimistic", False)),
            "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
            "pybullet_success_1push": round(hull["first"], 3) if hull else None,
            "pybullet_success_3push": round(hull["final"], 3) if hull else None,

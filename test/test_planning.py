@@ -439,3 +439,24 @@ def test_when_the_best_pushes_are_unsafe_under_noise_a_calmer_push_is_checked():
     plan = planner.plan(box_cloud(), Pose2D(0, 0, 0), goal)
     assert plan.robust_topple_probability <= cfg.max_topple_probability
     assert plan.speed < 1.0
+
+
+def test_a_pessimistic_planner_holds_the_worst_perturbed_push_to_the_limit():
+    """pessimistic: a push one of whose perturbations topples is never chosen (the highest topple risk over the
+    check is held to the limit, not the mean); with every good push next to a cliff it refuses with the reason.
+    The default holds the mean and keeps such a push; both report the highest risk."""
+    class Cliff(AnalyticSlidingModel):  # the sliding model; pushes faster than 1.05 m/s topple
+        def rollout_batch(self, *args, **kwargs):
+            out = super().rollout_batch(*args, **kwargs)
+            out.topple_prob[:] = (np.linalg.norm(out.lin_vels[:, 0, :2], axis=1) > 1.05)[:, None]
+            return out
+
+    goal = Goal(Pose2D(0.11, 0.0, 0.0), position_tolerance=0.005, yaw_tolerance=math.pi)  # ~1.04 m/s
+    cfg = replace(FAST, time_budget=30.0, max_iterations=6, tip_check=False)
+    mean = PushPlanner(Cliff(), cfg).plan(box_cloud(), Pose2D(0, 0, 0), goal)
+    assert mean.robust_topple_probability <= cfg.max_topple_probability < mean.worst_topple_probability
+    with pytest.raises(PlanningError, match="no safe push"):
+        PushPlanner(Cliff(), replace(cfg, pessimistic=True)).plan(box_cloud(), Pose2D(0, 0, 0), goal)
+    near = Goal(Pose2D(0.07, 0.0, 0.0), position_tolerance=0.01, yaw_tolerance=math.pi)  # ~0.83 m/s: margin
+    plan = PushPlanner(Cliff(), replace(cfg, pessimistic=True)).plan(box_cloud(), Pose2D(0, 0, 0), near)
+    assert plan.worst_topple_probability <= cfg.max_topple_probability

@@ -146,7 +146,8 @@ class PushPlanner:
                         position_error=float(np.linalg.norm(goal.pose.xy - start.xy)),
                         yaw_error=0.0 if goal.ignores_yaw else float(fold_yaw(abs(float(wrap_angle(
                             goal.pose.yaw - start.yaw))), goal.yaw_symmetry)),
-                        topple_probability=0.0, robust_topple_probability=0.0, spread=0.0, within_tolerance=True,
+                        topple_probability=0.0, robust_topple_probability=0.0, worst_topple_probability=0.0,
+                        spread=0.0, within_tolerance=True,
                         trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
                         horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
                         message=_with_note("already within tolerance: no push needed", goal))
@@ -155,7 +156,7 @@ class PushPlanner:
         cfg, goal, start = search.cfg, search.goal, search.start
         if best.off_table:
             raise PlanningError("every push considered leaves the table")
-        worst = max(best.topple, best.robust_topple)
+        worst = best.risk(cfg.pessimistic)
         if worst > cfg.max_topple_probability:
             raise PlanningError(f"no safe push: every push considered is predicted to topple the object (lowest "
                                 f"topple probability {worst:.2f} > max_topple_probability "
@@ -183,6 +184,7 @@ class PushPlanner:
                         final_pose=Pose2D(float(final[0]), float(final[1]), final_yaw), final_position=final.copy(),
                         position_error=float(best.pos_err), yaw_error=0.0 if goal.ignores_yaw else float(best.yaw_err),
                         topple_probability=float(best.topple), robust_topple_probability=float(best.robust_topple),
+                        worst_topple_probability=float(max(best.topple, best.worst_topple)),
                         spread=float(best.spread), within_tolerance=bool(within), trajectory=traj,
                         planning_time=time.perf_counter() - t0, iterations=search.iterations,
                         rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,

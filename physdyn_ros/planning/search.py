@@ -108,7 +108,13 @@ class Candidate:
     trajectory: Trajectory
     robust_cost: float = math.inf  # mean cost over the perturbed pushes (robustness check)
     robust_topple: float = 0.0  # mean topple probability over the push and its perturbed pushes
+    worst_topple: float = 0.0  # highest topple probability over the push and its perturbed pushes
     spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
+
+    def risk(self, pessimistic: bool) -> float:
+        """The topple risk held to the limit: the push's own and, once checked, the mean (or, pessimistic, the
+        highest) over it and its perturbations."""
+        return max(self.topple, self.worst_topple if pessimistic else self.robust_topple)
 
     @property
     def params(self) -> np.ndarray:
@@ -316,7 +322,7 @@ class Search:
         if not chosen:
             return best
         self._perturb(chosen, m)
-        safe = [c for c in chosen if c.robust_topple <= cfg.max_topple_probability]
+        safe = [c for c in chosen if c.risk(cfg.pessimistic) <= cfg.max_topple_probability]
         if not safe:
             calm = sorted((c for c in self.seen if c.topple <= 0.5 * cfg.max_topple_probability), key=lambda c: c.cost)
             # within the budget if it allows (at least one candidate: a refusal must have looked)
@@ -324,7 +330,7 @@ class Search:
             fallback = [c for c in _distinct(calm, k) if all(c is not o for o in chosen)][:room]
             if fallback:
                 self._perturb(fallback, m)
-                safe = [c for c in fallback if c.robust_topple <= cfg.max_topple_probability]
+                safe = [c for c in fallback if c.risk(cfg.pessimistic) <= cfg.max_topple_probability]
                 chosen += fallback
         return min(safe or chosen, key=lambda c: c.robust_cost)
 
@@ -346,6 +352,7 @@ class Search:
             c.robust_cost = float(np.mean([min(p.cost, INFEASIBLE) for p in group] + [c.cost]))
             # the push's topple probability under execution noise: the mean over it and its perturbations
             c.robust_topple = float(np.mean([c.topple] + [p.topple for p in group]))
+            c.worst_topple = float(max([c.topple] + [p.topple for p in group]))
             finals = np.array([p.trajectory.positions[-1, :2] for p in group])
             c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
 

@@ -188,6 +188,7 @@ class PlannerConfig:
     robust_samples: int = 6  # perturbed roll-outs per re-checked elite
     robust_share: float = 0.25  # share of the time budget kept for the robustness check
     tip_check: bool = True  # also count the rigid-body tipping estimate (PushBody.tip_ratios) as topple risk
+    pessimistic: bool = False  # hold the highest topple risk of the perturbed pushes to the limit, not the mean
     max_spin: float = 40.0  # rad/s, pushes giving a faster initial angular velocity are infeasible (the model was
     #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
@@ -255,6 +256,7 @@ class PushPlan:
     yaw_error: float  # rad, predicted |final yaw - goal yaw| (0 when the goal ignores yaw)
     topple_probability: float  # predicted probability of toppling during the push
     robust_topple_probability: float  # mean topple probability over this push and its perturbations (robustness)
+    worst_topple_probability: float  # highest topple probability over this push and its perturbations
     spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
     within_tolerance: bool  # the predicted final pose is within both tolerances
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
