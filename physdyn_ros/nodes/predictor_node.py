@@ -116,22 +116,20 @@ class PredictorNode(ManagedNode):
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
                                         "output; inputs in another frame are rejected (no tf lookup)",
                                         read_only=True)
-        declare(self, "object_id", "", "predict for this object only; empty = the object of the latest "
-                "shape feature")
+        declare(self, "object_id", "", "predict for this object only; empty = the latest shape feature's object")
         declare(self, "horizon", 60, "steps predicted per push (1/15 s each) and the service default; at most "
                 "the model's max_horizon", low=1, check=self._within_max_horizon)
         declare(self, "initial_pose_source", "object_state", "'object_state': pose at the push = the "
                 "object_state stamped at the twist's stamp (waits up to state_wait for it); 'shape_feature': "
                 "the feature's centroid and canonical heading (no tracker needed; predicted poses are then "
                 "those of the cloud's canonical frame)", choices=POSE_SOURCES)
-        declare(self, "max_feature_age", 5.0, "a shape feature older than this (s, by stamps) than the twist "
-                "is stale: no prediction; 0 = no limit", low=0.0)
+        declare(self, "max_feature_age", 5.0, "s: a shape feature this much older than the twist is stale (0: any)",
+                low=0.0)
         declare(self, "max_state_age", 0.5, "the object_state used as initial pose must be within this many "
                 "seconds of the twist's stamp", low=0.0)
-        declare(self, "state_wait", 0.25, "s to wait for an object_state stamped at the twist's stamp", low=0.0,
-                high=10.0)
-        declare(self, "max_linear_speed", 5.0, "initial |v| above this (m/s) is rejected as absurd", low=0.0)
-        declare(self, "max_angular_speed", 60.0, "initial |w| above this (rad/s) is rejected as absurd", low=0.0)
+        declare(self, "state_wait", 0.25, "s to wait for the object_state of the twist's stamp", low=0.0, high=10.0)
+        declare(self, "max_linear_speed", 5.0, "initial |v| above this (m/s) is rejected", low=0.0)
+        declare(self, "max_angular_speed", 60.0, "initial |w| above this (rad/s) is rejected", low=0.0)
         declare(self, "max_vertical_speed", MAX_VERTICAL_SPEED, "initial |v_z| above this (m/s) is rejected: the "
                 "model was trained on pushes along the table (impulses at most 10 degrees off the horizontal), "
                 "not on launches or objects driven into the table", low=0.0)
@@ -144,6 +142,8 @@ class PredictorNode(ManagedNode):
         declare(self, "plan_max_speed", 1.5, "m/s, fastest push plan_push may choose (request default)", low=0.01)
         declare(self, "plan_max_topple_probability", 0.35, "plan_push rejects pushes predicted to topple more "
                 "likely than this", low=0.0, high=1.0)
+        declare(self, "plan_physics_check", True, "plan_push re-simulates its finalists on the cloud's hull "
+                "(pybullet) and keeps only pushes that stay upright there too (planning.physics_check)")
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)

@@ -11,7 +11,8 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Push planning and online adaptation on top of the dynamics model (numpy + the Predictor; no rclpy, no pybullet).
+"""Push planning and online adaptation on top of the dynamics model (numpy + the Predictor; no rclpy; pybullet only
+where a planner checks its pushes on the hull, imported then).
 
     planner.py     PushPlanner: checks a request, runs the search, turns its winner into a PushPlan (or refuses)
     search.py      the search: CEM over Predictor.rollout_batch, the robustness check, the cost of a push
@@ -21,6 +22,7 @@
     adapt.py       OnlineAdapter: re-predict as observed states arrive ("steps in")
     closed_loop.py plan -> push in the pybullet Simulator -> observe -> re-plan (pybullet imported lazily)
     sim_model.py   PybulletModel: the planner driven by pybullet re-simulation (comparison baseline)
+    physics_check.py PhysicsCheck: the finalists re-simulated on the cloud's hull (pybullet, created on use)
     cli.py         `physdyn plan`
 """
 from .adapt import OnlineAdapter, repredict

@@ -40,6 +40,7 @@ import numpy as np
 from ..predictor import ShapeCode, Trajectory
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
 from .models import DynamicsModel
+from .physics_check import PhysicsCheck
 from .search import INFEASIBLE, Candidate, Search, StepCost
 from .symmetry import symmetry_note, yaw_symmetry
 from .types import (Goal, PlannerConfig, PlanningError, Pose2D, PushPlan, finite, fold_yaw, wrap_angle,
@@ -58,6 +59,23 @@ class PushPlanner:
         self.model = model
         self.config = config
         self._step_cost = StepCost()  # measured cost of one candidate-step, shared by this planner's searches
+        self._physics: Optional[PhysicsCheck] = None  # created on the first plan that checks (imports pybullet)
+
+    def close(self) -> None:
+        """Release the physics check's simulator (the model stays the caller's)."""
+        if self._physics is not None:
+            self._physics.close()
+            self._physics = None
+
+    def physics(self, cfg: PlannerConfig) -> Optional[PhysicsCheck]:
+        """The physics check for `cfg` (None when it checks none), kept while its friction stays the same."""
+        if not cfg.physics_check:
+            return None
+        frictions = (cfg.friction * (1.0 - cfg.friction_error), cfg.friction * (1.0 + cfg.friction_error))
+        if self._physics is None or self._physics.frictions != frictions:
+            self.close()
+            self._physics = PhysicsCheck(cfg.friction, cfg.friction_error)
+        return self._physics
 
     def warm_up(self) -> None:
         """Pay one-off costs (open3d's import for hulls, model warm-up, timing calibration) outside a request."""
@@ -143,7 +161,7 @@ class PushPlanner:
             raise PlanningError(f"goal unreachable: it is {dist:.3f} m away, but a push of at most "
                                 f"{cfg.max_speed:g} m/s slides at most {cfg.reach():.3f} m at friction "
                                 f">= {cfg.min_friction:g} (v^2 / (2 mu g)); raise max_speed or push twice")
-        search = Search(self.model, self._step_cost, code, body, start, goal, cfg, horizon, t0)
+        search = Search(self.model, self._step_cost, code, body, start, goal, cfg, horizon, t0, self.physics(cfg))
         best = search.run()
         return self._result(search, best, t0)
 
@@ -160,7 +178,7 @@ class PushPlanner:
                         yaw_error=0.0 if goal.ignores_yaw else float(fold_yaw(abs(float(wrap_angle(
                             goal.pose.yaw - start.yaw))), goal.yaw_symmetry)),
                         topple_probability=0.0, robust_topple_probability=0.0, worst_topple_probability=0.0,
-                        spread=0.0, within_tolerance=True,
+                        spread=0.0, physics_topple_probability=-1.0, within_tolerance=True,
                         trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
                         horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
                         message=_with_note("already within tolerance: no push needed", goal))
@@ -170,6 +188,11 @@ class PushPlanner:
         if best.off_table:
             raise PlanningError("every push considered leaves the table")
         worst = best.risk(cfg.pessimistic)
+        if best.physics_topple > cfg.max_topple_probability and best.topple <= cfg.max_topple_probability:
+            raise PlanningError(f"no safe push: the pushes the model finds safe topple the object re-simulated on "
+                                f"its hull (in {100 * best.physics_topple:.0f} % of the runs of the safest, friction "
+                                f"{cfg.friction:g} -/+ {100 * cfg.friction_error:.0f} %); try a lower max_speed or "
+                                "a nearer goal")
         if worst > cfg.max_topple_probability:
             raise PlanningError(f"no safe push: every push considered is predicted to topple the object (lowest "
                                 f"topple probability {worst:.2f} > max_topple_probability "
@@ -187,6 +210,8 @@ class PushPlanner:
         lin = np.array([best.speed * best.direction[0], best.speed * best.direction[1], 0.0])
         yaw_text = "" if goal.ignores_yaw else f", yaw {math.degrees(best.yaw_err):.1f} deg"
         robust = f", spread {100 * best.spread:.1f} cm" if search.checked else ""
+        if best.physics_topple >= 0:
+            robust += f", hull physics topples {100 * best.physics_topple:.0f} % of its runs"
         msg = (f"{'within' if within else 'OUTSIDE'} tolerance: predicted to stop {100 * best.pos_err:.1f} cm"
                f"{yaw_text} from the goal (topple probability {worst:.2f}{robust}); push at "
                f"{100 * best.contact[2]:.1f} cm height; {search.iterations} CEM iterations, {search.rollouts} "
@@ -198,7 +223,8 @@ class PushPlanner:
                         position_error=float(best.pos_err), yaw_error=0.0 if goal.ignores_yaw else float(best.yaw_err),
                         topple_probability=float(best.topple), robust_topple_probability=float(best.robust_topple),
                         worst_topple_probability=float(max(best.topple, best.worst_topple)),
-                        spread=float(best.spread), within_tolerance=bool(within), trajectory=traj,
+                        spread=float(best.spread), physics_topple_probability=float(best.physics_topple),
+                        within_tolerance=bool(within), trajectory=traj,
                         planning_time=time.perf_counter() - t0, iterations=search.iterations,
                         rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,
                         model_id=str(self.model.model_id), message=_with_note(msg, goal))

@@ -61,6 +61,7 @@ from ..learn.prior import MIN_RADIUS
 from ..predictor import Predictor, Trajectory, TrajectoryBatch
 from .body import BodyError, PushBody
 from .models import DynamicsModel
+from .physics_check import PhysicsCheck
 from .types import Goal, PlannerConfig, PlanningError, Pose2D, yaw_of
 
 __all__ = ["INFEASIBLE", "MOVING_SCALE", "Candidate", "Search", "StepCost", "final_speed", "tip_probability"]
@@ -123,17 +124,30 @@ class Candidate:
     robust_topple: float = 0.0  # mean topple probability over the push and its perturbed pushes
     worst_topple: float = 0.0  # highest topple probability over the push and its perturbed pushes
     spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
+    worst_push: Optional[tuple[np.ndarray, np.ndarray]] = None  # (lin_vel, ang_vel) of its most toppling perturbation
+    physics_topple: float = -1.0  # share of toppled hull re-simulations (planning.physics_check); -1: not checked
 
     def risk(self, pessimistic: bool) -> float:
         """The topple risk held to the limit: the push's own and, once checked, the mean (or, pessimistic, the
-        highest) over it and its perturbations."""
-        return max(self.topple, self.worst_topple if pessimistic else self.robust_topple)
+        highest) over it and its perturbations, and the physics check's share of toppled runs."""
+        return max(self.topple, self.worst_topple if pessimistic else self.robust_topple, self.physics_topple)
+
+    @property
+    def lin_vel(self) -> np.ndarray:
+        return np.array([self.speed * self.direction[0], self.speed * self.direction[1], 0.0])
 
     @property
     def params(self) -> np.ndarray:
         return np.array([self.speed * self.direction[0], self.speed * self.direction[1], self.fraction,
                          self.height_fraction])
 
+
+#: Finalists the physics check always looks at before a refusal, even past the time budget.
+PHYSICS_MIN = 3
+#: Calm pushes of the whole search the physics check may fall back on.
+PHYSICS_POOL = 8
+#: Speeds, shares of the best push's, of the gentler pushes the physics check tries when that one tips the hull.
+GENTLER = (0.75, 0.55, 0.4)
 
 #: Perturbations of the robustness check (standard deviations): relative speed, direction (rad), offset
 #: fraction, height (m).
@@ -144,12 +158,15 @@ class Search:
     """One CEM run (state shared by the iterations and the robustness check)."""
 
     def __init__(self, model: DynamicsModel, step_cost: StepCost, code: Any, body: PushBody, start: Pose2D,
-                 goal: Goal, cfg: PlannerConfig, horizon: int, t0: float) -> None:
+                 goal: Goal, cfg: PlannerConfig, horizon: int, t0: float, physics: Optional[PhysicsCheck] = None
+                 ) -> None:
         self.model, self.step_cost, self.code, self.body = model, step_cost, code, body
         self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
+        self.physics = physics
         self.deadline = t0 + cfg.time_budget
         robust = cfg.robust_candidates > 0 and cfg.robust_samples > 0
-        self.cem_deadline = t0 + cfg.time_budget * ((1.0 - cfg.robust_share) if robust else 1.0)
+        share = (cfg.robust_share if robust else 0.0) + (cfg.physics_share if physics is not None else 0.0)
+        self.cem_deadline = t0 + cfg.time_budget * (1.0 - share)
         self.rng = np.random.default_rng(cfg.seed)
         self.iterations = 0
         self.rollouts = 0
@@ -345,7 +362,52 @@ class Search:
                 self._perturb(fallback, m)
                 safe = [c for c in fallback if c.risk(cfg.pessimistic) <= cfg.max_topple_probability]
                 chosen += fallback
+        if self.physics is not None:
+            return self._physics_checked(safe, chosen)
         return min(safe or chosen, key=lambda c: c.robust_cost)
+
+    def _physics_checked(self, safe: list[Candidate], chosen: list[Candidate]) -> Candidate:
+        """The most robust push the hull's physics also finds safe (planning.physics_check), checked in the order
+        of preference until one passes: the robustness check's two best safe pushes, the best push slowed down
+        (Search._gentler), the other safe pushes, then the calm pushes of the whole
+        search (the model's topple risk under half the limit, each a different push, closest to the goal first;
+        each goes through the robustness check first). Checking goes on past the budget for at least PHYSICS_MIN
+        pushes and at most half a budget more (a refusal must have looked). When none passes, the checked push of
+        lowest risk (the planner refuses it with the reason)."""
+        assert self.physics is not None
+        cfg = self.cfg
+        hull = self.physics.encode(self.body.points + self.body.com)
+        limit = cfg.max_topple_probability
+        calm = sorted((c for c in self.seen if c.topple <= 0.5 * limit and c.cost < INFEASIBLE), key=lambda c: c.cost)
+        safe = sorted(safe, key=lambda c: c.robust_cost)
+        gentler = sorted(self._gentler(min(chosen, key=lambda c: c.robust_cost)), key=lambda c: c.cost)
+        pool = safe[:2] + gentler + safe[2:]
+        pool += [c for c in _diverse(calm, PHYSICS_POOL) if all(c is not o for o in pool + chosen)]
+        hard = self.deadline + 0.5 * cfg.time_budget
+        checked: list[Candidate] = []
+        for c in pool:
+            now = time.perf_counter()
+            if now > hard or (len(checked) >= PHYSICS_MIN and now > self.deadline):
+                break
+            if c.worst_push is None and cfg.robust_samples > 0:
+                self._perturb([c], cfg.robust_samples)
+                if c.risk(cfg.pessimistic) > limit:
+                    continue
+            c.physics_topple = self.physics.topple_share(hull, (c.lin_vel, c.ang_vel), c.worst_push, self.horizon,
+                                                         limit)
+            checked.append(c)
+            if c.risk(cfg.pessimistic) <= limit:
+                return c
+        return min(checked or chosen, key=lambda c: (c.risk(cfg.pessimistic), c.robust_cost))
+
+    def _gentler(self, best: Candidate) -> list[Candidate]:
+        """The push `best` slower (GENTLER speeds) at its own contact height and at the lowest: shorter pushes
+        that tip less, for the closed loop to push again (the model's calm ones only)."""
+        speeds = np.array(GENTLER)
+        p = np.tile(best.params, (2 * len(speeds), 1))
+        p[:, :2] *= np.tile(speeds, 2)[:, None]
+        p[len(speeds):, 3] = 0.0
+        return [c for c in self.evaluate(p, keep=False) if c.cost < INFEASIBLE]
 
     def _perturb(self, chosen: list[Candidate], m: int) -> None:
         """Roll each candidate out again under m perturbations (speed, direction, offset, height); fills its
@@ -366,8 +428,23 @@ class Search:
             # the push's topple probability under execution noise: the mean over it and its perturbations
             c.robust_topple = float(np.mean([c.topple] + [p.topple for p in group]))
             c.worst_topple = float(max([c.topple] + [p.topple for p in group]))
+            worst = max(group, key=lambda p: p.topple)
+            c.worst_push = (worst.lin_vel, worst.ang_vel)
             finals = np.array([p.trajectory.positions[-1, :2] for p in group])
             c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
+
+
+def _diverse(cands: list[Candidate], k: int) -> list[Candidate]:
+    """The first k candidates each clearly another push than those before it: speed by 5 cm/s or direction,
+    offset or height fraction by 0.1 (cands sorted by preference)."""
+    chosen: list[Candidate] = []
+    scale = np.array([0.05, 0.05, 0.1, 0.1])
+    for c in cands:
+        if all(np.abs((c.params - o.params) / scale).max() > 1.0 for o in chosen):
+            chosen.append(c)
+            if len(chosen) == k:
+                break
+    return chosen
 
 
 def _distinct(cands: list[Candidate], k: int) -> list[Candidate]:

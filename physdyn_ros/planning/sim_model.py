@@ -86,9 +86,11 @@ class PybulletModel:
                         half_extents=0.5 * (local.max(axis=0) - local.min(axis=0)))
 
     def rollout_batch(self, shapes: Any, lin_vels: Any, ang_vels: Any, horizon: int = 60, positions: Any = None,
-                      orientations: Any = None) -> TrajectoryBatch:
+                      orientations: Any = None, friction: Optional[float] = None) -> TrajectoryBatch:
+        """friction: this batch's coefficient instead of the model's (planning.physics_check tries several)."""
         from ..sim import simulate_from_state
 
+        mu = self.friction if friction is None else float(friction)
         if self._sim is None:
             raise RuntimeError("PybulletModel is closed")
         if not isinstance(shapes, HullCode):
@@ -107,7 +109,7 @@ class PybulletModel:
         out = {k: np.zeros((b, int(horizon) + 1, 4 if k == "quat" else 3)) for k in keys}
         topple = np.zeros((b, int(horizon) + 1))
         for i in range(b):
-            rec = simulate_from_state(shapes.shape, (1.0, 1.0, 1.0), p[i], q[i], v[i], w[i], friction=self.friction,
+            rec = simulate_from_state(shapes.shape, (1.0, 1.0, 1.0), p[i], q[i], v[i], w[i], friction=mu,
                                       num_frames=int(horizon) + 1, config=self.config, sim=self._sim)
             for k in keys:
                 out[k][i] = rec[k]

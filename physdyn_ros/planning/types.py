@@ -202,6 +202,9 @@ class PlannerConfig:
     robust_share: float = 0.25  # share of the time budget kept for the robustness check
     tip_check: bool = True  # also count the rigid-body tipping estimate (PushBody.tip_ratios) as topple risk
     pessimistic: bool = False  # hold the highest topple risk of the perturbed pushes to the limit, not the mean
+    physics_check: bool = True  # finalists must also stay upright re-simulated on the cloud's hull (physics_check)
+    friction_error: float = 0.2  # the physics check simulates friction * (1 -/+ this)
+    physics_share: float = 0.15  # share of the time budget kept for the physics check
     max_spin: float = 40.0  # rad/s, pushes giving a faster initial angular velocity are infeasible (the model was
     #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
     table: Optional[TableBounds] = field(default_factory=TableBounds)  # None: no table edge
@@ -230,6 +233,10 @@ class PlannerConfig:
                                 f"{lo:g}, {hi:g}")
         if not 0 <= finite(self.robust_share, "robust_share") < 1:
             raise PlanningError(f"robust_share must be in [0, 1), got {self.robust_share}")
+        if not 0 <= finite(self.physics_share, "physics_share") < 1 - self.robust_share:
+            raise PlanningError(f"physics_share must be in [0, 1 - robust_share), got {self.physics_share}")
+        if not 0 <= finite(self.friction_error, "friction_error") < 1:
+            raise PlanningError(f"friction_error must be in [0, 1), got {self.friction_error}")
         optional = ("horizon", "robust_candidates", "robust_samples")
         for name in ("samples", "max_iterations") + optional:
             v = getattr(self, name)
@@ -271,6 +278,7 @@ class PushPlan:
     robust_topple_probability: float  # mean topple probability over this push and its perturbations (robustness)
     worst_topple_probability: float  # highest topple probability over this push and its perturbations
     spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
+    physics_topple_probability: float  # share of the physics check's hull runs that toppled (-1: not checked)
     within_tolerance: bool  # the predicted final pose is within both tolerances
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
     planning_time: float  # s, wall time of the plan() call

@@ -62,6 +62,7 @@ def planner_config(req: PlanPush.Request, param: Callable[[str], Any]):
                          density=float(param("plan_density")) or DEFAULT_DENSITY,
                          min_contact_height=float(param("plan_min_contact_height")),
                          max_contact_height=float(param("plan_max_contact_height")),
+                         physics_check=bool(param("plan_physics_check")),
                          table=TableBounds(*bounds) if bounds else None)
 
 
@@ -110,9 +111,11 @@ def fill_response(res: PlanPush.Response, plan: Any, frame: str, stamp: Any, obj
     res.within_tolerance = bool(plan.within_tolerance)
     res.planning_time = float(plan.planning_time)
     res.trajectory = trajectory_to_msg(plan.trajectory, frame, stamp, object_id, model_id)
-    # the plan's risk: the model's, the tipping estimate's and the worst of the robustness check
+    # the plan's risk: the model's, the tipping estimate's, the robustness check's mean and the physics check's
     res.topple_probability = float(max(res.trajectory.topple_probability, plan.topple_probability,
-                                       plan.robust_topple_probability))
+                                       plan.robust_topple_probability, plan.physics_topple_probability))
+    res.physics_topple_probability = float(plan.physics_topple_probability)
+    res.spread = float(plan.spread)
     return res
 
 
