@@ -14,13 +14,13 @@
 """The planner's physics check: its finalists re-simulated in pybullet on the observed cloud's convex hull.
 
 Why: on shapes unlike those it was trained on, the learned topple head misses topples that physics on the hull
-catches (held-out families, 800 pushes: the model finds 79 % of the topples, the hull at friction -20 % / +20 %
-96 % / 99 %), while the hull cries topple where the real object would not (precision 0.72-0.76: it knows neither
-the true mass distribution nor the friction). So the hull vetoes rather than decides: a push is safe when both the
-learned model and the hull say so. Each finalist is simulated at the nominal friction and at friction_error more
-(sliding friction tips an object forward over its leading edge), and its most toppling perturbation of the
-robustness check at the nominal; the share of those runs that toppled is the push's physics topple probability,
-the plan's `physics_topple_probability`.
+catches (held-out families, 800 pushes: the model finds 79 % of the topples, the hull at friction -20 % / +20 % 96 %
+/ 99 %; bench/topple_mix.py), while the hull cries topple where the real object would not (precision 0.72-0.76: it
+knows neither the true mass distribution nor the friction). So the hull vetoes rather than decides: a push is safe
+when both the learned model and the hull say so. Each finalist is simulated at the nominal friction and at
+friction_error more (sliding friction tips an object forward over its leading edge), and its most toppling
+perturbation of the robustness check at the nominal; the share of those runs that toppled is the push's physics
+topple probability, the plan's `physics_topple_probability`.
 
 One run costs about 5 ms (a 1-2 s roll-out that stops at rest); the planner checks its finalists in the order it
 prefers them and stops at the first safe one (planning/search.py: Search.robust).

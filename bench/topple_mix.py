@@ -1,0 +1,102 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Whole-push topple decisions: the model, pybullet on the cloud's hull, and fixed mixtures of the two.
+
+    .venv/bin/python bench/topple_mix.py [--data data/heldout_families] [--max-sequences 800] [--partial 0]
+        [--checkpoint physdyn_ros/models/default.pt]
+
+On the same test pushes: the model's whole-push topple probability (its 60-step roll-out's highest, as
+`physdyn evaluate` scores it; --partial 1: from one camera's view with 2 mm noise), pybullet re-simulating the
+cloud's convex hull (whole cloud, true initial state) at the true friction -20 % and +20 % (toppled or not), and
+mixtures fixed in advance (no fitting on these pushes): the mean of the model and the two hull runs, and 0.6 x
+the model + 0.4 x the hulls' mean. Why: the hull finds nearly every topple of unfamiliar shapes but over-calls
+them; the model is precise but misses some (the planner's physics check, docs/planning.md, uses the hull as a
+veto for that reason). Prints F1 (precision / recall) at 0.5 and the Brier score of each; the last line is one
+JSON object {method: {f1, precision, recall, brier}, "pushes": n, "topples": k}.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def scores(prob: np.ndarray, truth: np.ndarray) -> dict:
+    pred, true = prob >= 0.5, truth > 0.5
+    tp = int(np.sum(pred & true))
+    precision = tp / max(int(pred.sum()), 1)
+    recall = tp / max(int(true.sum()), 1)
+    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
+    return {"f1": round(f1, 3), "precision": round(precision, 3), "recall": round(recall, 3),
+            "brier": round(float(np.mean((prob - true) ** 2)), 4)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--checkpoint", default=None, help="default: the shipped model")
+    ap.add_argument("--data", default="data/heldout_families")
+    ap.add_argument("--max-sequences", type=int, default=800)
+    ap.add_argument("--partial", type=float, default=0.0, help="share of the model's clouds seen by one camera")
+    ap.add_argument("--friction-error", type=float, default=0.2)
+    args = ap.parse_args()
+
+    import torch
+
+    from physdyn_ros.learn.baselines import pybullet_resimulate
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.evaluate import ground_truth, model_rollouts
+    from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros.resources import DEFAULT_MODEL
+
+    torch.set_num_threads(1)
+    model, _ = load_model(args.checkpoint or DEFAULT_MODEL)
+    sims = load_sims(args.data, ["test"])
+    index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
+    horizon = 60
+    with torch.inference_mode():
+        rolled = model_rollouts(model, sims, index, horizon, partial=args.partial,
+                                noise=0.002 if args.partial else 0.0)
+    truth = ground_truth(sims, index, horizon).topple_prob.max(axis=1)
+    p_model = rolled.topple_prob.max(axis=1)
+    pts = sims.points[sims.shape_index[index]]
+    state0 = (sims.pos[index, 0], sims.quat[index, 0], sims.lin_vel[index, 0], sims.ang_vel[index, 0])
+    hull = {}
+    for sign, name in ((-1, "minus"), (1, "plus")):
+        mu = sims.friction[index] * (1.0 + sign * args.friction_error)
+        hull[name] = pybullet_resimulate(pts, sims.scale[index], *state0, mu, horizon,
+                                         sims.manifest)["toppled"].max(axis=1).astype(np.float64)
+    hull_mean = 0.5 * (hull["minus"] + hull["plus"])
+    pct = int(round(100 * args.friction_error))
+    methods = {"model": p_model, f"pybullet hull mu -{pct}%": hull["minus"], f"pybullet hull mu +{pct}%": hull["plus"],
+               "mean of model and both hulls": (p_model + hull["minus"] + hull["plus"]) / 3.0,
+               "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean}
+    result: dict = {name: scores(p, truth) for name, p in methods.items()}
+    view = "one camera's view (model only)" if args.partial else "whole clouds"
+    print(f"{args.data}: {len(index)} pushes, {int(truth.sum())} topples, {view}")
+    print(f"{'method':<32} {'F1 (P / R)':>20} {'Brier':>7}")
+    for name, r in result.items():
+        print(f"{name:<32} {r['f1']:>8.3f} ({r['precision']:.2f} / {r['recall']:.2f}) {r['brier']:>7.4f}")
+    result.update(pushes=int(len(index)), topples=int(truth.sum()))
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
