@@ -22,8 +22,10 @@ cloud's convex hull (whole cloud, true initial state) at the true friction -20 %
 mixtures fixed in advance (no fitting on these pushes): the mean of the model and the two hull runs, and 0.6 x
 the model + 0.4 x the hulls' mean. Why: the hull finds nearly every topple of unfamiliar shapes but over-calls
 them; the model is precise but misses some (the planner's physics check, docs/planning.md, uses the hull as a
-veto for that reason). Prints F1 (precision / recall) at 0.5 and the Brier score of each; the last line is one
-JSON object {method: {f1, precision, recall, brier}, "pushes": n, "topples": k}.
+veto for that reason). Prints F1 (precision / recall) at 0.5 and the Brier score of each, and the reliability
+of the model's and the mixture's probabilities in five bins (pushes, mean predicted, observed topple frequency);
+the last line is one JSON object {method: {f1, precision, recall, brier[, reliability]}, "pushes": n,
+"topples": k}.
 """
 from __future__ import annotations
 
@@ -61,7 +63,7 @@ def main() -> int:
 
     from physdyn_ros.learn.baselines import pybullet_resimulate
     from physdyn_ros.learn.checkpoint import load_model
-    from physdyn_ros.learn.evaluate import ground_truth, model_rollouts
+    from physdyn_ros.learn.evaluate import calibration, ground_truth, model_rollouts
     from physdyn_ros.learn.windows import load_sims
     from physdyn_ros.resources import DEFAULT_MODEL
 
@@ -88,11 +90,17 @@ def main() -> int:
                "mean of model and both hulls": (p_model + hull["minus"] + hull["plus"]) / 3.0,
                "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean}
     result: dict = {name: scores(p, truth) for name, p in methods.items()}
+    for name in ("model", "0.6 model + 0.4 hulls' mean"):  # reliability: is a predicted 0.3 a topple in 3 of 10?
+        result[name]["reliability"] = calibration(methods[name], truth, bins=5)["reliability"]
     view = "one camera's view (model only)" if args.partial else "whole clouds"
     print(f"{args.data}: {len(index)} pushes, {int(truth.sum())} topples, {view}")
     print(f"{'method':<32} {'F1 (P / R)':>20} {'Brier':>7}")
     for name, r in result.items():
         print(f"{name:<32} {r['f1']:>8.3f} ({r['precision']:.2f} / {r['recall']:.2f}) {r['brier']:>7.4f}")
+    for name in ("model", "0.6 model + 0.4 hulls' mean"):
+        print(f"reliability of {name}: " + ", ".join(
+            f"{r['bin']}: {r['n']} pushes, predicted {r['predicted']:.2f}, observed {r['observed']:.2f}"
+            for r in result[name]["reliability"] if r["n"]))
     result.update(pushes=int(len(index)), topples=int(truth.sum()))
     print(json.dumps(result))
     return 0

@@ -97,3 +97,50 @@ def test_single_object_mode_tracks_its_object_and_restarts_with_its_id(rclpy_ini
     p = node.states[0].pose.position
     assert math.hypot(p.x - far[0].x, p.y - far[0].y) < 0.01 and not node.onsets
     node.destroy_node()
+
+
+def test_the_predictor_runs_on_perception_alone(rclpy_init, tiny_model):
+    """state_source perception: the predictor reads nothing of the ground truth (no object_state, initial_twist
+    or observed_state subscription); each initial_state of the perception node is predicted for its track id,
+    from its pose and twist, stamped at the onset, and refined with the tracked states that follow."""
+    from physdyn_ros.msg import PredictedTrajectory
+    from physdyn_ros.nodes.predictor_node import PredictorNode
+    from physdyn_ros.ros.qos import LATCHED
+
+    camera = tabletop_scene(100).camera
+    perception = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
+        Parameter("track_com", value="footprint"), Parameter("sensor_frame", value="cam"),
+        Parameter("sensor_transform", value=camera.as_list())])
+    predictor = PredictorNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("state_source", value="perception"),
+        Parameter("steps_in", value=2), Parameter("max_feature_age", value=0.0)])
+    topics = {s.topic_name.lstrip("/") for s in predictor.subscriptions}
+    assert {"tracked_state", "initial_state", "shape_feature"} <= topics
+    assert not topics & {"object_state", "initial_twist", "observed_state"}, topics
+    listener = rclpy_init.create_node("prediction_listener")
+    predicted: list[PredictedTrajectory] = []
+    initial: list[ObjectState] = []
+    listener.create_subscription(PredictedTrajectory, "predicted_trajectory", predicted.append, LATCHED)
+    listener.create_subscription(ObjectState, "initial_state", initial.append, STATE_QOS)
+    v0, a, t_push, heading = 0.8, 4.0, 0.5, 0.4
+    base = 10**9
+    with Spinner(perception, predictor, listener):
+        assert wait_for(lambda: perception.pub_initial.get_subscription_count() > 1, 10)
+        for k in range(int((t_push + v0 / a) * 15) + 6):
+            tau = min(max(0.0, k / 15 - t_push), v0 / a)
+            s = v0 * tau - 0.5 * a * tau * tau
+            specs = list(DEFAULT_OBJECTS)
+            specs[1] = specs[1].moved(dx=s * math.cos(heading), dy=s * math.sin(heading))
+            scene = tabletop_scene(20_000, objects=specs, rng=np.random.default_rng(k))
+            perception.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(base + k * DT_NS)))
+            wait_for(lambda: predictor._states, 1.0)  # the tracked states reach the predictor in order
+        assert wait_for(lambda: initial and any(p.steps_in == 2 for p in predicted), 10), (
+            len(initial), [p.steps_in for p in predicted], predictor.last_error)
+    onset = initial[0]
+    first = next(p for p in predicted if p.steps_in == 0)
+    assert first.object_id == onset.object_id and first.header.stamp == onset.header.stamp
+    start = first.states[0].pose.position
+    assert (start.x, start.y) == (onset.pose.position.x, onset.pose.position.y)
+    assert first.states[0].twist.linear.x == onset.twist.linear.x
+    assert predictor.rejected == 0, predictor.last_error

@@ -41,7 +41,6 @@ import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped
@@ -51,12 +50,13 @@ from visualization_msgs.msg import MarkerArray
 from ..conventions import REST_ANG_VEL, REST_LIN_VEL, TABLE_FRAME
 from ..msg import ObjectState, PredictedTrajectory, ShapeFeature
 from ..ros.cloud import cloud_to_xyz
-from ..ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy, yaw_quaternion
+from ..ros.convert import pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy, yaw_quaternion
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
 from ..ros.model import load_predictor
 from ..ros import plan_push
 from ..ros.params import declare
+from ..ros.pending import ParkedTwist, PendingRefinement, refine
 from ..ros.requests import (MAX_DENSITY, RequestError, check_feature, check_feature_age, check_pose_on_cloud,
                              observed_steps, ordered_bounds, shape_code)
 from ..ros.qos import FEATURE_QOS, LATCHED, STATE_QOS
@@ -68,6 +68,9 @@ from ..srv import PlanPush, PredictTrajectory
 
 #: Where the pose at the push comes from (parameter initial_pose_source).
 POSE_SOURCES = ("object_state", "shape_feature")
+#: Where poses and pushes come from (parameter state_source): the sim's (or a tracker's) object_state and
+#: initial_twist, or the perception node's tracked_state and initial_state.
+STATE_SOURCES = ("sim", "perception")
 #: A stamp this close to another counts as the same instant (float round-trips of stamps).
 SAME_INSTANT_NS = 1_000_000
 NS = 1e-9
@@ -75,30 +78,6 @@ NS = 1e-9
 ABSURD_GAP = 86_400.0
 #: m/s: the largest vertical speed of the training pushes (3.5 m/s at 10 degrees above the horizontal).
 MAX_VERTICAL_SPEED = 0.6
-
-
-@dataclass
-class ParkedTwist:
-    """A twist waiting (at most state_wait) for the object_state stamped at its push instant."""
-
-    msg: TwistStamped
-    t_start: float  # time.monotonic() when the twist arrived
-    deadline: float
-
-
-@dataclass
-class PendingRefinement:
-    """A prediction waiting for `steps_in` observed states before it is re-run with them."""
-
-    object_id: str
-    t0_ns: int
-    position: np.ndarray
-    orientation: np.ndarray
-    lin_vel: np.ndarray
-    ang_vel: np.ndarray
-    feature: ShapeFeature
-    deadline: float  # time.monotonic() after which the refinement is dropped
-    published: int = 0  # observed states used by the last re-prediction published
 
 
 class PredictorNode(ManagedNode):
@@ -116,6 +95,10 @@ class PredictorNode(ManagedNode):
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
                                         "output; inputs in another frame are rejected (no tf lookup)",
                                         read_only=True)
+        declare(self, "state_source", "sim", "'sim': predict for each initial_twist, poses from object_state, "
+                "observed states from observed_state; 'perception': predict for each initial_state of the perception "
+                "node (its object, pose and twist), refine with its tracked_state (read on activate)",
+                choices=STATE_SOURCES)
         declare(self, "object_id", "", "predict for this object only; empty = the latest shape feature's object")
         declare(self, "horizon", 60, "steps predicted per push (1/15 s each) and the service default; at most "
                 "the model's max_horizon", low=1, check=self._within_max_horizon)
@@ -207,6 +190,12 @@ class PredictorNode(ManagedNode):
     def activate(self) -> None:
         self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
                                  callback_group=self._data)
+        if self._param("state_source") == "perception":  # the tracker's states alone: no ground truth is read
+            self.active_subscription(ObjectState, "tracked_state", self._on_tracked, STATE_QOS,
+                                     callback_group=self._data)
+            self.active_subscription(ObjectState, "initial_state", self._on_initial_state, STATE_QOS,
+                                     callback_group=self._infer)
+            return
         self.active_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._data)
         self.active_subscription(ObjectState, "observed_state", self._on_observed, STATE_QOS,
                                  callback_group=self._data)
@@ -262,6 +251,22 @@ class PredictorNode(ManagedNode):
     def _on_observed(self, msg: ObjectState) -> None:
         with self._lock:
             self._observed.setdefault(msg.object_id, deque(maxlen=512)).append(msg)
+
+    def _on_tracked(self, msg: ObjectState) -> None:
+        """A tracked state is both the pose history (pushes start from it) and an observed step after a push."""
+        self._on_state(msg)
+        self._on_observed(msg)
+
+    def _on_initial_state(self, msg: ObjectState) -> None:
+        """A push the tracker saw begin: predict for its object from its pose and twist at the onset."""
+        t_start = time.monotonic()
+        try:
+            self.check_frame(msg.header.frame_id, "initial_state")
+            pose = pose_to_numpy(msg.pose)
+        except ValueError as exc:
+            self._fail(str(exc))
+            return
+        self._predict(msg.object_id, msg.header.stamp, msg.twist, t_start, pose, "initial_state")
 
     # ----------------------------------------------------------------------------------------------- checks
     def _param(self, name: str):
@@ -432,15 +437,25 @@ class PredictorNode(ManagedNode):
     def _predict_twist(self, msg: TwistStamped, t_start: float) -> None:
         try:
             self.check_frame(msg.header.frame_id, "initial_twist")
-            lin, ang = twist_to_numpy(msg.twist)
+        except ValueError as exc:
+            self._fail(str(exc))
+            return
+        self._predict("", msg.header.stamp, msg.twist, t_start, None)
+
+    def _predict(self, object_id: str, stamp, twist, t_start: float, pose: tuple | None,
+                 what: str = "initial_twist") -> None:
+        """Predict and publish the push of `object_id` (empty: the target_object) at `stamp` with velocities
+        `twist`, from `pose` (position, orientation), or where initial_pose_source says when None."""
+        try:
+            lin, ang = twist_to_numpy(twist)
             self.check_velocity(lin, ang)
-            t_ns = time_to_ns(msg.header.stamp)
+            t_ns = time_to_ns(stamp)
             if t_ns <= 0:
-                raise RequestError("initial_twist header.stamp is unset (0): stamp the twist with the instant of "
+                raise RequestError(f"{what} header.stamp is unset (0): stamp the {what[8:]} with the instant of "
                                    "the push (the node's clock, e.g. node.get_clock().now())")
-            object_id = self.target_object()
+            object_id = object_id or self.target_object()
             feat = self.select_feature(object_id, t_ns)
-            position, orientation = self.pose_at(object_id, t_ns, feat)
+            position, orientation = pose if pose is not None else self.pose_at(object_id, t_ns, feat)
             traj = self.predictor.rollout(self.shape_code(feat), lin, ang, horizon=self.horizon(),
                                           position=position, orientation=orientation)
         except ValueError as exc:  # RequestError, or the Predictor refusing an input
@@ -449,7 +464,7 @@ class PredictorNode(ManagedNode):
         except Exception as exc:  # noqa: BLE001 - never let one bad message take the node down
             self._fail(f"internal error: {type(exc).__name__}: {exc}")
             return
-        out = trajectory_to_msg(traj, self.table_frame, msg.header.stamp, object_id, self.model_id)
+        out = trajectory_to_msg(traj, self.table_frame, stamp, object_id, self.model_id)
         self._warn_novel(object_id, traj.novelty)
         self.publish(out, feat)
         self.predictions += 1
@@ -465,43 +480,11 @@ class PredictorNode(ManagedNode):
                 time.monotonic() + steps_in * float(self.predictor.dt) * 3 + 2.0))
 
     def _on_refine_timer(self) -> None:
-        """Expire parked twists; re-predict pending pushes as observed states arrive: one corrected trajectory
-        per new observed state, fed as "steps in", until `steps_in` states have been used."""
+        """Expire parked twists; re-predict pending pushes as observed states arrive (ros/pending.refine)."""
         if self._parked:
             self._release_parked()
-        if not self._pending:
-            return
-        steps_in = int(self._param("steps_in"))
-        dt_ns = int(round(float(self.predictor.dt) * 1e9))
-        keep = []
-        for p in self._pending:
-            with self._lock:
-                obs = [s for s in self._observed.get(p.object_id, ())
-                       if p.t0_ns + dt_ns // 2 <= time_to_ns(s.header.stamp)]
-            obs = obs[:steps_in]
-            if len(obs) <= p.published:
-                if time.monotonic() < p.deadline:
-                    keep.append(p)
-                else:
-                    self._fail(f"steps_in {steps_in}: only {len(obs)} observed_state messages of '{p.object_id}' "
-                               "after the push; refinement stopped")
-                continue
-            try:
-                observed = self.observed(obs)
-                traj = self.predictor.rollout(self.shape_code(p.feature), p.lin_vel, p.ang_vel,
-                                              horizon=self.horizon(), position=p.position, orientation=p.orientation,
-                                              observed=observed)
-            except Exception as exc:  # noqa: BLE001
-                self._fail(f"refinement with {len(obs)} observed states failed: {exc}")
-                continue
-            out = trajectory_to_msg(traj, self.table_frame, ns_to_time(p.t0_ns), p.object_id, self.model_id,
-                                    steps_in=len(obs))
-            self.publish(out, p.feature)
-            self.predictions += 1
-            p.published = len(obs)
-            if p.published < steps_in:
-                keep.append(p)
-        self._pending = keep
+        if self._pending:
+            refine(self)
 
     def observed(self, states: list[ObjectState]):
         """Observed ObjectStates of frames 1..K after the push -> the Predictor's `observed` argument."""
