@@ -46,7 +46,6 @@ import yaml
 from .conventions import PARENT_PID_ENV
 
 
-
 @dataclass(frozen=True)
 class NodeSpec:
     """One node of the suite. Adding a node = one entry in SPECS, a `/**/<name>` section in config/suite.yaml, a
@@ -504,6 +503,10 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
     if args.use_sim_time:
         for name in o:
             o[name].append("use_sim_time:=true")
+    if args.state_source == "perception":  # tracking needs 15 Hz; a camera's partial view is what a robot has
+        o["predictor"].append("state_source:=perception")
+        o["pusher"].append("state_source:=perception")
+        o["sim"] += ["cloud_source:=camera", "publish_cloud_rate:=15.0"]
     for item in args.param or []:
         node, sep, assignment = item.partition(":")
         if not sep or node not in o or ":=" not in assignment:
@@ -515,29 +518,26 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None,
                         help=f"params file (default: config/{CONFIG_NAME} of this installation)")
-    parser.add_argument("--model", default=None, help="checkpoint for perception and predictor (default: the "
-                        "params file's model_path, i.e. the shipped model)")
+    parser.add_argument("--model", default=None, help="checkpoint of perception and predictor (default: config's)")
     parser.add_argument("--real-time-factor", type=float, default=None, help="sim speed; 0 = as fast as possible")
     parser.add_argument("--category", default=None, help="shape category the sim spawns at start")
-    parser.add_argument("--nodes", default=None, help="comma-separated subset to start (default: all of "
-                        f"{', '.join(n for n, _ in NODES)})")
+    parser.add_argument("--nodes", default=None, help=f"subset to start (default: {','.join(n for n, _ in NODES)})")
     parser.add_argument("--param", action="append", metavar="NODE:NAME:=VALUE",
                         help="override one parameter of one node (repeatable)")
     parser.add_argument("--log-dir", type=Path, default=None, help="write each node's output to DIR/<node>.log")
     parser.add_argument("--log-level", default=None, choices=["debug", "info", "warn", "error", "fatal"])
-    parser.add_argument("--namespace", default="", help="ROS namespace of every node (and so of their relative "
-                        "topics and services), e.g. robot1")
-    parser.add_argument("--use-sim-time", action="store_true", help="every node takes its time from /clock (the sim "
-                        "publishes it with --param sim:publish_clock:=true)")
-    parser.add_argument("--no-sim", action="store_true", help="do not start the sim node (feed cloud, initial_twist "
-                        "and object_state from your own sensors and tracker)")
-    parser.add_argument("--dds-profile", type=Path, default=None, help="Fast DDS XML profile of the nodes (default: "
-                        "the one set in the environment, else config/fastdds.xml)")
+    parser.add_argument("--namespace", default="", help="ROS namespace of every node and its topics, e.g. robot1")
+    parser.add_argument("--use-sim-time", action="store_true", help="the nodes' time from /clock (sim:publish_clock)")
+    parser.add_argument("--no-sim", action="store_true", help="do not start the sim node (feed cloud from your sensor; "
+                        "initial_twist and object_state from your tracker, or use --state-source perception)")
+    parser.add_argument("--state-source", choices=("sim", "perception"), default="sim", help="perception: the "
+                        "predictor and the pusher read the perception node's tracked_state and initial_state, never "
+                        "the sim's truth; the sim renders depth-camera clouds at 15 Hz")
+    parser.add_argument("--dds-profile", type=Path, default=None, help="Fast DDS XML profile (default: the "
+                        "environment's, else config/fastdds.xml)")
     parser.add_argument("--no-autostart", action="store_true", help="start the managed nodes unconfigured "
-                        "(parameter autostart:=false) for a lifecycle manager or `ros2 lifecycle set`; physdyn up then "
-                        "waits until each answers get_state")
-    parser.add_argument("--startup-timeout", type=float, default=180.0, help="s to wait for all nodes to be active "
-                        "(their lifecycle state, asked through <node>/get_state)")
+                        "(autostart:=false) for a lifecycle manager; wait until each answers get_state")
+    parser.add_argument("--startup-timeout", type=float, default=180.0, help="s for every node's get_state to answer")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -346,3 +346,26 @@ def test_several_objects_tracked_pushed_by_id_and_refusals(rclpy_init, tiny_mode
         # reset: all back at their spawn poses
         assert call(rec.reset, Trigger.Request()).success
         np.testing.assert_allclose(sim.sim.state("can")[0][:2], start["can"][:2], atol=2e-3)
+
+
+def test_a_push_without_an_id_moves_the_object_at_its_contact_point(rclpy_init):
+    """An impulse with no object_id pushes the object whose hull holds the point (a robot pushing by the
+    perception node's track ids knows no sim ids), not the current object; without a point, the current one (the
+    last pushed)."""
+    sim = sim_node(real_time_factor=0.0, publish_cloud_rate=0.0, category="box",
+                   objects=["", "id=can category=cylinder shape_seed=2 x=0.3 y=-0.05 yaw=0.3"])
+    rec = Recorder(rclpy_init)
+    with Spinner(sim, rec.node):
+        assert sim.object_id == "object" and sim.sim.ids == ["object", "can"]
+        start = {k: s[0].copy() for k, s in sim.sim.states().items()}
+        req = push_request(impulse=(0.3 * sim.sim.get("can").mass, 0.0, 0.0))
+        req.point.x, req.point.y, req.point.z = map(float, start["can"])  # the can's centre of mass
+        res = call(rec.push, req)
+        assert res.success and "'can'" in res.message, res.message
+        assert wait_for(lambda: not sim._running, 20)
+        end = {k: s[0].copy() for k, s in sim.sim.states().items()}
+        assert end["can"][0] - start["can"][0] > 0.005
+        assert np.linalg.norm(end["object"] - start["object"]) < 0.003
+        res = call(rec.push, push_request(impulse=(0.05, 0.0, 0.0)))  # no point: the current (last pushed) one
+        assert res.success and "'can'" in res.message, res.message
+        assert wait_for(lambda: not sim._running, 20)

@@ -315,3 +315,22 @@ def test_up_namespace_and_sim_time_reach_the_nodes(rclpy_init, tiny_model, tmp_p
     assert sorted(f.name for f in tmp_path.iterdir()) == ["predictor.log"]  # --no-sim: no sim started
     bad = subprocess.run([PHYSDYN, "up", "--namespace", "robot 1"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "is not a ROS namespace" in bad.stderr
+
+
+def test_state_source_perception_sets_the_nodes_it_concerns():
+    """--state-source perception: predictor and pusher read perception's states, the sim renders camera clouds at
+    15 Hz; every override names a parameter its node declares (the launcher would refuse it otherwise)."""
+    import argparse
+
+    from physdyn_ros.launcher import add_arguments, overrides_from_args
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    o = overrides_from_args(parser.parse_args(["--state-source", "perception"]))
+    assert "state_source:=perception" in o["predictor"] and "state_source:=perception" in o["pusher"]
+    assert {"cloud_source:=camera", "publish_cloud_rate:=15.0"} <= set(o["sim"])
+    for node, assignments in o.items():
+        for a in assignments:
+            assert a.split(":=")[0] in known_parameters(node), (node, a)
+    default = overrides_from_args(parser.parse_args([]))
+    assert not any("state_source" in a for a in default["predictor"] + default["pusher"])

@@ -18,9 +18,9 @@ For each goal (physdyn_ros/action/PushToGoal):
    goal, corrected by the observed / predicted slide ratio of the pushes so far; planning.session);
 2. push: the sim node's `push_object` executes the impulse at the contact point, or, with execute_externally,
    a robot stack reads the planned push from the feedback (stage "pushing") and executes it itself;
-3. observe: the object's states on `object_state` until it rests (conventions.REST_*); after `steps_in`
-   moving states the predictor re-predicts the rest pose from them (`predict_trajectory`'s observed states),
-   sent as feedback;
+3. observe: the object's states on `object_state` (state_source perception: `tracked_state`) until it rests
+   (conventions.REST_*); after `steps_in` moving states the predictor re-predicts the rest pose from them
+   (`predict_trajectory`'s observed states), sent as feedback;
 4. stop (planning.session.PushSession, the same rules as the pybullet bench): reached, toppled, refused,
    out_of_pushes; also cancelled (checked before every push), invalid (a bad goal) and timeout (the object did
    not start moving or did not come to rest in time).
@@ -57,7 +57,7 @@ from ..ros.params import declare
 from ..ros.qos import reliable_client
 from ..ros.run import run_node
 from ..srv import PlanPush, PredictTrajectory, PushObject
-from .predictor_node import FEATURE_QOS, STATE_QOS  # the subscriber side of the same topics
+from .predictor_node import FEATURE_QOS, STATE_QOS, STATE_SOURCES  # the subscriber side of the same topics
 
 
 
@@ -104,6 +104,9 @@ class PusherNode(ManagedNode):
         declare(self, "predict_service", "predict_trajectory", "the predictor's PredictTrajectory service",
                 read_only=True)
         declare(self, "push_service", "push", "the sim node's PushObject service", read_only=True)
+        declare(self, "state_source", "sim", "where the object's poses come from: 'sim' object_state (the sim or a "
+                "tracker), 'perception' the perception node's tracked_state; the sim is then pushed at the contact "
+                "point without an id (read on activate)", choices=STATE_SOURCES)
 
         self._states: dict[str, deque[ObjectState]] = {}  # the newest states per object
         self._received: dict[str, int] = {}  # states received per object in all (the deque drops the oldest)
@@ -137,7 +140,8 @@ class PusherNode(ManagedNode):
 
     def activate(self) -> None:
         self._stopping = False
-        self.active_subscription(ObjectState, "object_state", self._on_state, STATE_QOS, callback_group=self._inputs)
+        topic = "tracked_state" if self._param("state_source") == "perception" else "object_state"
+        self.active_subscription(ObjectState, topic, self._on_state, STATE_QOS, callback_group=self._inputs)
         self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
                                  callback_group=self._inputs)
 
@@ -352,7 +356,9 @@ class PusherNode(ManagedNode):
         return self._call(self.plan_client, plan_req, "plan_push")
 
     def _push(self, object_id: str, plan: PlanPush.Response) -> None:
-        res = self._call(self.push_client, PushObject.Request(object_id=object_id, impulse=plan.impulse,
+        # perception's track ids are not the sim's: the sim pushes the object at the contact point
+        sim_id = "" if self._param("state_source") == "perception" else object_id
+        res = self._call(self.push_client, PushObject.Request(object_id=sim_id, impulse=plan.impulse,
                                                               point=plan.contact_point), "push_object")
         if not res.success:
             raise EpisodeError("invalid", f"push_object refused the push: {res.message}")

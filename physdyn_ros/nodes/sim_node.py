@@ -49,8 +49,8 @@ from std_srvs.srv import Trigger
 from ..conventions import DT, TABLE_FRAME
 from ..msg import ObjectState
 from ..perception.frames import RigidTransform, camera_optical_pose
-from ..sim.table import (MAX_CONTACT_GAP, MAX_SPAWN_DISTANCE, check_size, check_spawn, parse_object_entry,
-                         surface_gap)
+from ..sim.table import (MAX_CONTACT_GAP, MAX_SPAWN_DISTANCE, check_size, check_spawn, object_at,
+                         parse_object_entry, surface_gap)
 from ..sim.camera import MAX_PIXELS as MAX_CAMERA_PIXELS, MIN_PIXELS as MIN_CAMERA_PIXELS, CameraSpec, DepthCamera
 from ..sim.camera import points_differ
 from ..ros.cloud import xyz_to_cloud
@@ -93,8 +93,7 @@ class SimNode(ManagedNode):
                                               "id of a spawn_object request without one")
         declare(self, "category", "box", "shape category at start: box, cylinder, bottle, mug, trashcan, speaker "
                 "or pybullet_data (out-of-category meshes)")
-        declare(self, "shape_seed", 0, "which shape of the category (procedural index / pybullet_data mesh index)",
-                low=0)
+        declare(self, "shape_seed", 0, "which shape of the category (procedural / pybullet_data index)", low=0)
         declare(self, "mesh_path", "", "mesh file (OBJ/STL/PLY, metres, z up) to spawn at start instead of a "
                 "category")
         declare(self, "scale", [1.0, 1.0, 1.0], "per-axis scale of the shape (object frame)", length=3, low=1e-3,
@@ -139,8 +138,7 @@ class SimNode(ManagedNode):
                                          read_only=True)
         declare(self, "max_push_time", 10.0, "s of simulated time after which a push ends even if the object "
                 "still moves", low=DT, high=600.0)
-        declare(self, "max_linear_speed", 10.0, "pushes giving a faster centre of mass are rejected, m/s",
-                low=0.0)
+        declare(self, "max_linear_speed", 10.0, "pushes giving a faster centre of mass are rejected, m/s", low=0.0)
         declare(self, "max_angular_speed", 100.0, "pushes giving a faster spin are rejected, rad/s", low=0.0)
         self.publish_clock: bool = declare(self, "publish_clock", False, "publish the simulation time on /clock",
                                            read_only=True)
@@ -418,7 +416,9 @@ class SimNode(ManagedNode):
         if self._running:
             return False, (f"push rejected: push {self.push_id} is still running (the object moves); wait until "
                            "it comes to rest or call reset")
-        oid = req.object_id or self.object_id
+        # no id: the object at the contact point (a robot pushing by perception's ids knows no sim ids)
+        oid = req.object_id or (self.object_id if req.use_velocity else object_at(self.sim, xyz_to_numpy(req.point),
+                                                                                  self.object_id))
         if oid not in self.sim.bodies:
             known = ", ".join(repr(k) for k in self.sim.ids) or "none: spawn one"
             return False, f"push rejected: unknown object_id {oid!r} (objects: {known})"

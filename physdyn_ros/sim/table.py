@@ -93,3 +93,12 @@ def surface_gap(sim: Any, object_id: str, point: np.ndarray) -> float:
     local = quat_to_matrix(q).T @ (np.asarray(point, dtype=np.float64) - pos)
     hull = ConvexHull(np.asarray(b.shape.hull()[0], dtype=np.float64) * b.scale)
     return max(0.0, float(np.max(hull.equations[:, :3] @ local + hull.equations[:, 3])))
+
+
+def object_at(sim: Any, point: np.ndarray, fallback: str) -> str:
+    """The id of the object whose convex hull lies nearest `point` (world frame): the one a push there touches.
+    `fallback` when the point is unset (all zero: the centre of mass) or the world holds at most one object."""
+    point = np.asarray(point, dtype=np.float64)
+    if len(sim.ids) <= 1 or not np.any(point) or not np.all(np.isfinite(point)):
+        return fallback
+    return min(sim.ids, key=lambda oid: surface_gap(sim, oid, point))

@@ -1,0 +1,59 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""push_to_goal on perception alone (state_source perception): the pusher and the predictor read the perception
+node's tracked states, goals name its track ids, the sim is pushed at the contact point without an id; nothing
+but the test reads the sim's ground truth, which checks where the object came to rest."""
+from __future__ import annotations
+
+import math
+
+from rclpy.parameter import Parameter
+
+from physdyn_ros.msg import ObjectState
+from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.nodes.predictor_node import PredictorNode
+from physdyn_ros.nodes.pusher_node import PusherNode
+from physdyn_ros.nodes.sim_node import SimNode
+from physdyn_ros.ros.qos import STATE_QOS
+from test_nodes_support import Spinner, wait_for
+from test_pusher import Client, goal_msg
+
+
+def test_push_to_goal_on_perception_alone(rclpy_init):
+    sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
+                                       Parameter("publish_cloud_rate", value=15.0)])
+    perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])  # not the sim's id
+    perception_mode = Parameter("state_source", value="perception")
+    predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
+                                                   Parameter("plan_time_budget", value=0.6)])
+    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=3.0)])
+    for node, banned in ((predictor, {"object_state", "initial_twist", "observed_state"}), (pusher, {"object_state"})):
+        topics = {s.topic_name.lstrip("/") for s in node.subscriptions}
+        assert "tracked_state" in topics and not topics & banned, (node.get_name(), topics)
+    user = rclpy_init.create_node("perception_user")
+    tracked: list[ObjectState] = []
+    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    client = Client(user)
+    with Spinner(sim, perception, predictor, pusher, user, threads=8):
+        assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
+        track = tracked[-1].object_id
+        assert track == "seen_box" != sim.object_id
+        x0, y0, _ = sim.spawn_pose
+        goal = (x0 + 0.12, y0 + 0.03)
+        result = client.send(goal_msg(*goal, object_id=track, position_tolerance=0.03, yaw_tolerance=math.pi,
+                                      max_pushes=4), timeout=120.0)
+        assert result.success and result.outcome == "reached", result.message
+        pos, *_ = sim.sim.state(sim.object_id)  # the truth: the object rests within the tolerance (+ tracking)
+        assert math.hypot(pos[0] - goal[0], pos[1] - goal[1]) < 0.035, (pos, goal)
+        assert sim.push_id == result.pushes
