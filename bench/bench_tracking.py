@@ -1,0 +1,280 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The perception node's tracking against the simulator's truth: three objects, depth-camera clouds at 15 Hz.
+
+    .venv/bin/python bench/bench_tracking.py [--pushes 24] [--rest-seconds 60] [--resolution 320 240] [--seed 0]
+
+A pybullet world with three objects (a box, a speaker and a wedge of shapes no model was trained on) is rendered by
+the sim's depth camera (sim/camera.py, the sim node's default eye and target) every 1/15 s of simulated time; each
+cloud goes through the perception node's own processing (PerceptionNode.process: segmentation, features, tracking),
+as the node does on `cloud`. After --rest-seconds at rest, --pushes pushes by id, one every 3 s, each a random
+initial velocity (0.3-1.2 m/s along the table, spin up to 3 rad/s) of a random object, drawn so that its slide keeps
+clear of the other objects and ends in view (collisions would be pushes the bench did not make). Track ids are
+matched to the sim's ids on the first cloud (nearest position). Figures:
+  * tracked position error (tracked COM estimate vs the true COM), at rest and moving (true speed > 2 cm/s),
+    median and p90; orientation error of the rotation since the first cloud (tracked vs true), median;
+  * onsets: the share of pushes with an initial_state of the pushed object's track within 5 frames, the delay
+    (frames from the push to the onset's stamp, median), false onsets (an initial_state with no push), at rest
+    and in all; initial speed error (relative) and spin error (rad/s) against the velocity the push set, median;
+  * the prediction error ratio: the shipped model's final position error (against where the object came to
+    rest) from perception's initial_state, over the same model fed the true initial pose and twist, on the same
+    pushes and the same cloud (medians);
+  * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost);
+  * perception's cost per 100k-point cloud with three objects (p50 CPU time of one thread; the node's test
+    scene), and the sim's rendering and processing time per camera cloud (p50 wall).
+push_to_goal with --state-source perception is exercised by test/test_pusher_perception.py, not timed here
+(its keys are null). The last line is one JSON object with the issue's keys.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+DT_NS = 66_666_667  # 15 Hz
+OBJECTS = (("a", "box", 9001, (0.05, -0.2)), ("b", "speaker", 9002, (0.05, 0.2)), ("c", "wedge", 9003, (-0.2, 0.0)))
+VIEW = np.array([0.25, 0.3])  # m: |x|, |y| of the table area the camera sees whole
+MOVING = 0.02  # m/s: faster than this (true COM speed) counts as moving
+FRAMES_PER_PUSH = 45
+
+
+def relative_error(q_track: np.ndarray, q_track0: np.ndarray, q_true: np.ndarray, q_true0: np.ndarray) -> float:
+    """rad between the tracked rotation since its first cloud and the true one since the same instant."""
+    from scipy.spatial.transform import Rotation as R
+
+    tracked = R.from_quat(q_track) * R.from_quat(q_track0).inv()
+    true = R.from_quat(q_true) * R.from_quat(q_true0).inv()
+    return float((tracked * true.inv()).magnitude())
+
+
+def quat(msg) -> np.ndarray:
+    o = msg.pose.orientation
+    return np.array([o.x, o.y, o.z, o.w])
+
+
+def xyz(v) -> np.ndarray:
+    return np.array([v.x, v.y, v.z])
+
+
+def free_push(sim, rng: np.random.Generator) -> tuple[str, np.ndarray]:
+    """A random object and a velocity (0.3-1.2 m/s) whose Coulomb slide (v^2 / (2 mu g), 30 % longer for the
+    spin) keeps 15 cm from the other objects and ends in the camera's view: a push that hits nothing."""
+    states = {oid: s[0] for oid, s in sim.states().items()}
+    for _ in range(1000):
+        oid = str(rng.choice(list(states)))
+        speed = float(rng.uniform(0.3, 1.2))
+        heading = float(rng.uniform(-math.pi, math.pi))
+        d = np.array([math.cos(heading), math.sin(heading)])
+        path = states[oid][:2] + np.linspace(0.0, 1.3 * speed ** 2 / (2 * 0.5 * 9.81), 20)[:, None] * d
+        clear = all(np.min(np.linalg.norm(path - q[:2], axis=1)) > 0.15 for o, q in states.items() if o != oid)
+        if clear and np.all(np.abs(path[-1]) < VIEW):
+            return oid, np.array([speed * d[0], speed * d[1], 0.0])
+    raise RuntimeError("no push keeps clear of the other objects: the objects crowd the table")
+
+
+def perception_100k_ms() -> float:
+    """p50 CPU ms of PerceptionNode.process on the tests' 100k-point scene of three objects, one thread."""
+    from rclpy.parameter import Parameter
+
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.perception.synthetic import tabletop_scene
+    from physdyn_ros.ros.cloud import xyz_to_cloud
+    from physdyn_ros.ros.convert import ns_to_time
+
+    scene = tabletop_scene(100_000)
+    cam = scene.camera
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("single_object", value=False), Parameter("num_threads", value=1),
+        Parameter("sensor_frame", value="cam"), Parameter("sensor_transform", value=cam.as_list())])
+    msg = xyz_to_cloud(scene.points, "cam", ns_to_time(10**9))
+    node.process(msg)
+    cpu = []
+    for k in range(30):
+        msg.header.stamp = ns_to_time(10**9 + (k + 1) * DT_NS)
+        t = time.process_time()
+        node.process(msg)
+        cpu.append(time.process_time() - t)
+    node.destroy_node()
+    return 1e3 * float(np.median(cpu))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--pushes", type=int, default=24)
+    ap.add_argument("--rest-seconds", type=float, default=60.0)
+    ap.add_argument("--resolution", type=int, nargs=2, default=(320, 240))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--track-com", choices=("model", "footprint"), default="model",
+                    help="the perception node's track_com (where a track's centre of mass is taken)")
+    ap.add_argument("--verbose", action="store_true", help="a line per push")
+    args = ap.parse_args()
+
+    import rclpy
+    import torch
+    from rclpy.parameter import Parameter
+
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.predictor import Predictor
+    from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
+    from physdyn_ros.ros.convert import ns_to_time, time_to_ns
+    from physdyn_ros.shapes import resolve_shape
+    from physdyn_ros.sim import SimConfig, Simulator
+    from physdyn_ros.sim.camera import CameraSpec, DepthCamera
+
+    torch.set_num_threads(1)
+    rclpy.init()
+    rng = np.random.default_rng(args.seed)
+    node = PerceptionNode(parameter_overrides=[Parameter("single_object", value=False),
+                                               Parameter("num_threads", value=1),
+                                               Parameter("track_com", value=args.track_com)])
+    predictor = Predictor.load(threads=1)
+    spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), args.resolution, 60.0)
+    rest_frames = int(round(args.rest_seconds * 15))
+    frames = rest_frames + args.pushes * FRAMES_PER_PUSH + 15
+    truth: list[dict] = []  # per frame: sim id -> (pos, quat, lin, ang)
+    tracked: list[dict] = []  # per frame: track id -> ObjectState
+    onsets: list[tuple[int, object]] = []  # (frame, ObjectState)
+    features: dict[str, object] = {}  # track id -> latest ShapeFeature
+    feature_at: list[dict] = []
+    pushes: list[dict] = []
+    frame_ms: list[float] = []
+    n_points: list[int] = []
+    with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
+        for oid, cat, seed, xy in OBJECTS:
+            sim.spawn(resolve_shape(cat, seed), xy=xy, yaw=float(rng.uniform(-math.pi, math.pi)), object_id=oid)
+        camera = DepthCamera(sim)
+        for k in range(frames):
+            if k >= rest_frames and (k - rest_frames) % FRAMES_PER_PUSH == 0 and len(pushes) < args.pushes:
+                oid, v = free_push(sim, rng)
+                w = np.array([0.0, 0.0, float(rng.uniform(-3.0, 3.0))])
+                sim.set_velocity(v, w, oid)
+                pushes.append({"frame": k, "id": oid, "v": v, "w": w})
+            elif k:
+                sim.step()
+            truth.append({oid: tuple(np.asarray(a, float) for a in s) for oid, s in sim.states().items()})
+            t0 = time.perf_counter()
+            points = camera.render(spec)
+            n_points.append(len(points))
+            msg = xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS))
+            feats, _, _ = node.process(msg)
+            frame_ms.append(1e3 * (time.perf_counter() - t0))
+            tracked.append({s.object_id: s for s in node.states})
+            onsets += [(k, s) for s in node.onsets]
+            for f in feats:
+                features[f.object_id] = f
+            feature_at.append(dict(features))
+    # track ids -> sim ids, by the nearest object on the first cloud with all three tracked
+    first = next(i for i, tr in enumerate(tracked) if len(tr) == len(OBJECTS))
+    match = {tid: min(truth[first], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2] - truth[first][oid][0][:2]))
+             for tid, s in tracked[first].items()}
+    q_first = {tid: quat(s) for tid, s in tracked[first].items()}
+    pos_rest, pos_moving, rot_rest, rot_moving = [], [], [], []
+    for k in range(first, frames):
+        for tid, s in tracked[k].items():
+            oid = match.get(tid)
+            if oid is None:
+                continue
+            p, q, lin, _ = truth[k][oid]
+            err = 1e3 * float(np.linalg.norm(xyz(s.pose.position) - p))
+            # the rotation since the first cloud, tracked against true (the frames' conventions cancel)
+            rerr = math.degrees(relative_error(quat(s), q_first[tid], q, truth[first][oid][1]))
+            moving = float(np.linalg.norm(lin[:2])) > MOVING
+            (pos_moving if moving else pos_rest).append(err)
+            (rot_moving if moving else rot_rest).append(rerr)
+    inverse = {oid: tid for tid, oid in match.items()}
+    detected, delays, speed_err, spin_err, pred_ratio_perc, pred_ratio_true, kept = [], [], [], [], [], [], []
+    used = set()
+    for n, p in enumerate(pushes):
+        tid = inverse.get(p["id"])
+        hits = [(i, (k, s)) for i, (k, s) in enumerate(onsets) if s.object_id == tid and i not in used
+                and p["frame"] - 1 <= round((time_to_ns(s.header.stamp) - 10**9) / DT_NS) <= p["frame"] + 5]
+        end = min(p["frame"] + FRAMES_PER_PUSH - 1, frames - 1)
+        rest_pos = truth[end][p["id"]][0]
+        kept.append(all(match.get(t) == o for t, o in match.items() if t in tracked[end])
+                    and len(tracked[end]) == len(OBJECTS)
+                    and all(min(truth[end], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2]
+                                                                           - truth[end][oid][0][:2])) == match.get(t)
+                            for t, s in tracked[end].items()))
+        if args.verbose:
+            near = [(round((time_to_ns(o.header.stamp) - 10**9) / DT_NS), o.object_id) for _, o in onsets
+                    if abs(round((time_to_ns(o.header.stamp) - 10**9) / DT_NS) - p["frame"]) < FRAMES_PER_PUSH]
+            print(f"  push {n}: {p['id']} (track {tid}) at frame {p['frame']}, |v| {np.linalg.norm(p['v']):.2f}; "
+                  f"onsets near: {near}; tracks at rest: {sorted(tracked[end])}, kept {kept[-1]}")
+        if not hits:
+            detected.append(False)
+            continue
+        i, (k_on, s) = hits[0]
+        used.add(i)
+        detected.append(True)
+        delays.append(round((time_to_ns(s.header.stamp) - 10**9) / DT_NS) - p["frame"])
+        v_est = xyz(s.twist.linear)
+        speed_err.append(abs(np.linalg.norm(v_est[:2]) - np.linalg.norm(p["v"][:2])) / np.linalg.norm(p["v"][:2]))
+        spin_err.append(float(np.linalg.norm(xyz(s.twist.angular) - p["w"])))
+        feat = feature_at[max(p["frame"] - 1, 0)].get(tid)
+        if feat is None:
+            continue
+        cloud = cloud_to_xyz(feat.points)
+        code = predictor.encode(cloud)
+        est = predictor.rollout(code, v_est, xyz(s.twist.angular), 60, position=xyz(s.pose.position),
+                                orientation=quat(s))
+        p0, q0, _, _ = truth[max(p["frame"] - 1, 0)][p["id"]]
+        ref = predictor.rollout(code, p["v"], p["w"], 60, position=p0, orientation=q0)
+        pred_ratio_perc.append(float(np.linalg.norm(est.positions[-1][:2] - rest_pos[:2])))
+        pred_ratio_true.append(float(np.linalg.norm(ref.positions[-1][:2] - rest_pos[:2])))
+    false_rest = sum(1 for k, _ in onsets if k < rest_frames)
+    false_all = len(onsets) - len(used)
+    cost = perception_100k_ms()
+    node.destroy_node()
+    rclpy.shutdown()
+
+    def med(x) -> float | None:
+        return round(float(np.median(x)), 3) if len(x) else None
+
+    def p90(x) -> float | None:
+        return round(float(np.percentile(x, 90)), 3) if len(x) else None
+
+    ratio = (med(pred_ratio_perc) / med(pred_ratio_true)) if pred_ratio_true and med(pred_ratio_true) else None
+    out = {
+        "position_error_rest_mm": med(pos_rest), "position_error_rest_p90_mm": p90(pos_rest),
+        "position_error_moving_mm": med(pos_moving), "position_error_moving_p90_mm": p90(pos_moving),
+        "orientation_error_rest_deg": med(rot_rest), "orientation_error_moving_deg": med(rot_moving),
+        "onset_detected_fraction": round(float(np.mean(detected)), 3) if detected else None,
+        "onset_delay_frames": med(delays), "false_onsets_at_rest": false_rest, "false_onsets": false_all,
+        "rest_seconds": args.rest_seconds, "initial_speed_error_frac": med(speed_err),
+        "initial_spin_error_rad_s": med(spin_err),
+        "prediction_error_ratio": round(ratio, 3) if ratio is not None else None,
+        "prediction_error_perception_cm": None if not pred_ratio_perc else round(100 * med(pred_ratio_perc), 2),
+        "prediction_error_truth_cm": None if not pred_ratio_true else round(100 * med(pred_ratio_true), 2),
+        "id_kept_fraction": round(float(np.mean(kept)), 3) if kept else None, "pushes": len(pushes),
+        "perception_p50_ms_100k": round(cost, 2), "camera_frame_p50_ms": med(frame_ms),
+        "points_per_cloud": med(n_points), "push_to_goal_success_perception": None, "push_to_goal_success_truth": None,
+    }
+    print(f"{len(pushes)} pushes after {args.rest_seconds:g} s at rest; {args.resolution[0]} x {args.resolution[1]} "
+          f"camera clouds at 15 Hz; three objects")
+    for key, value in out.items():
+        print(f"  {key}: {value}")
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
