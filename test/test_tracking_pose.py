@@ -88,6 +88,16 @@ def test_three_objects_at_rest_give_mm_poses_and_no_onset():
     assert np.degrees(np.median(run.ang_rest)) < 2.0
 
 
+def test_a_pose_that_steps_past_the_onset_threshold_and_stays_is_no_push():
+    """A 6 mm step within one cloud and no motion after it (how a partial view's estimate jumps when another side
+    comes into view) opens no push: the pose never left the rest pose by twice the 4 mm threshold. The step
+    becomes the rest pose, and a real push after it is still reported."""
+    step = Run(frames=45, v0=0.15, a=1.9, t_push=1.0)  # 5.9 mm in 0.08 s
+    assert not step.onsets, [(k, o.object_id, o.t) for k, o in step.onsets]
+    push = Run(frames=45, v0=0.5, a=4.0, t_push=1.0)
+    assert len(push.onsets) == 1
+
+
 @pytest.mark.parametrize("v0, a, w0, heading", [(0.8, 4.0, 4.0, 0.3), (1.0, 4.2, 3.8, -1.2), (0.76, 4.6, -4.5, -1.5)])
 def test_a_push_gives_its_onset_and_initial_twist(v0, a, w0, heading):
     t_push = 1.02
