@@ -39,7 +39,7 @@ import sys
 import threading
 import time
 from collections import deque
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 from rclpy.action import CancelResponse, GoalResponse
@@ -50,6 +50,7 @@ from ..conventions import REST_ANG_VEL, REST_FRAMES, REST_LIN_VEL, TABLE_FRAME
 from ..msg import ObjectState, ShapeFeature
 from ..planning.planner import Goal, PlanningError, Pose2D
 from ..planning.session import PushSession, Stop, goal_errors
+from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import pose, pose_to_numpy, quat_yaw, time_to_ns, twist_to_numpy, yaw_quaternion
 from ..ros.diagnostics import OK, WARN, Diagnostics, Report
 from ..ros.lifecycle import ManagedNode
@@ -111,6 +112,7 @@ class PusherNode(ManagedNode):
         self._states: dict[str, deque[ObjectState]] = {}  # the newest states per object
         self._received: dict[str, int] = {}  # states received per object in all (the deque drops the oldest)
         self._feature_ns: dict[str, int] = {}  # stamp of the newest shape feature per object
+        self._points: dict[str, Any] = {}  # the newest feature's points (PointCloud2) per object
         self._cond = threading.Condition()
         self._busy = threading.Lock()  # held by the running goal
         self._reserved = False  # a goal was accepted and has not finished (set under _cond)
@@ -178,7 +180,15 @@ class PusherNode(ManagedNode):
         with self._cond:
             self._feature_ns[msg.object_id] = max(self._feature_ns.get(msg.object_id, 0),
                                                   time_to_ns(msg.header.stamp))
+            self._points[msg.object_id] = msg.points
             self._cond.notify_all()
+
+    def _cloud(self, object_id: str) -> Optional[np.ndarray]:
+        """The latest feature's points of the object (table frame), None when none came with points."""
+        with self._cond:
+            msg = self._points.get(object_id)
+        pts = cloud_to_xyz(msg) if msg is not None and msg.width * msg.height else None
+        return pts if pts is not None and len(pts) >= 4 else None
 
     def _wait_feature(self, object_id: str, after_ns: int, push_index: int) -> None:
         """Wait for a shape feature of the object seen at or after after_ns (the object at rest): the next plan
@@ -302,6 +312,9 @@ class PusherNode(ManagedNode):
         if state is None:
             raise EpisodeError("invalid", f"no object_state of '{req.object_id}' received yet")
         reach = math.inf  # m one push slides: unknown until plan_push says
+        # the yaw the object can show (an upright cylinder's is ignored): the stops fold it as the planner does
+        session.observe_shape(self._cloud(req.object_id))
+        goal = session.goal
         while True:
             pose = self._pose = self._state_pose(state)
             stop = session.check(pose, bool(state.toppled))
