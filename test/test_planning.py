@@ -482,6 +482,8 @@ def test_the_physics_check_vetoes_pushes_the_model_finds_safe():
         planner = PushPlanner(AnalyticSlidingModel(0.5), cfg)
         with pytest.raises(PlanningError, match="re-simulated on its hull"):
             planner.plan(cloud, Pose2D(0, 0, 0), far)
+        with pytest.raises(PlanningError, match="re-simulated on its hull"):  # also without a robustness check
+            planner.plan(cloud, Pose2D(0, 0, 0), far, config=replace(cfg, robust_candidates=0))
         squat = box_cloud(half=(0.04, 0.04, 0.05), n=1500)
         near = planner.plan(squat, Pose2D(0, 0, 0), far)
         planner.close()

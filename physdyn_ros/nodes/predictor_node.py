@@ -18,6 +18,8 @@ Inputs
   initial_twist   (TwistStamped)   velocities right after a push, table frame; each one triggers a prediction
   object_state    (ObjectState)    the object's pose over time (tracker or sim): gives the pose at the push
   observed_state  (ObjectState)    observed states after the push: steps_in > 0 refines the prediction with them
+  state_source perception instead: initial_state (ObjectState, the perception node's push onsets: each one
+  triggers a prediction for its object) and tracked_state (ObjectState: poses and observed states)
 Outputs (reliable, transient local, depth 1: the latest prediction reaches late joiners)
   predicted_trajectory (PredictedTrajectory), predicted_path (nav_msgs/Path), predicted_markers (MarkerArray)
 Services
@@ -258,8 +260,12 @@ class PredictorNode(ManagedNode):
         self._on_observed(msg)
 
     def _on_initial_state(self, msg: ObjectState) -> None:
-        """A push the tracker saw begin: predict for its object from its pose and twist at the onset."""
+        """A push the tracker saw begin: predict for its object from its pose and twist at the onset (only for
+        the object_id parameter's object when that is set)."""
         t_start = time.monotonic()
+        wanted = self._param("object_id")
+        if wanted and msg.object_id != wanted:
+            return
         try:
             self.check_frame(msg.header.frame_id, "initial_state")
             pose = pose_to_numpy(msg.pose)

@@ -113,6 +113,7 @@ class PusherNode(ManagedNode):
         self._received: dict[str, int] = {}  # states received per object in all (the deque drops the oldest)
         self._feature_ns: dict[str, int] = {}  # stamp of the newest shape feature per object
         self._points: dict[str, Any] = {}  # the newest feature's points (PointCloud2) per object
+        self._perception = False  # state_source perception, as read on activate
         self._cond = threading.Condition()
         self._busy = threading.Lock()  # held by the running goal
         self._reserved = False  # a goal was accepted and has not finished (set under _cond)
@@ -142,7 +143,8 @@ class PusherNode(ManagedNode):
 
     def activate(self) -> None:
         self._stopping = False
-        topic = "tracked_state" if self._param("state_source") == "perception" else "object_state"
+        self._perception = self._param("state_source") == "perception"  # read once: the subscription matches it
+        topic = "tracked_state" if self._perception else "object_state"
         self.active_subscription(ObjectState, topic, self._on_state, STATE_QOS, callback_group=self._inputs)
         self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
                                  callback_group=self._inputs)
@@ -370,7 +372,7 @@ class PusherNode(ManagedNode):
 
     def _push(self, object_id: str, plan: PlanPush.Response) -> None:
         # perception's track ids are not the sim's: the sim pushes the object at the contact point
-        sim_id = "" if self._param("state_source") == "perception" else object_id
+        sim_id = "" if self._perception else object_id
         res = self._call(self.push_client, PushObject.Request(object_id=sim_id, impulse=plan.impulse,
                                                               point=plan.contact_point), "push_object")
         if not res.success:

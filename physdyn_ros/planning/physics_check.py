@@ -22,6 +22,10 @@ friction_error more (sliding friction tips an object forward over its leading ed
 perturbation of the robustness check at the nominal; the share of those runs that toppled is the push's physics
 topple probability, the plan's `physics_topple_probability`.
 
+The share is held to the planner's max_topple_probability: at the default 0.35 one toppled run of three (the
+higher friction or the perturbation only) passes, two veto; a push checked without a perturbation (two runs) is
+vetoed by one.
+
 One run costs about 5 ms (a 1-2 s roll-out that stops at rest); the planner checks its finalists in the order it
 prefers them and stops at the first safe one (planning/search.py: Search.robust).
 """

@@ -191,8 +191,8 @@ class PushPlanner:
         if best.physics_topple > cfg.max_topple_probability and best.topple <= cfg.max_topple_probability:
             raise PlanningError(f"no safe push: the pushes the model finds safe topple the object re-simulated on "
                                 f"its hull (in {100 * best.physics_topple:.0f} % of the runs of the safest, friction "
-                                f"{cfg.friction:g} -/+ {100 * cfg.friction_error:.0f} %); try a lower max_speed or "
-                                "a nearer goal")
+                                f"{cfg.friction:g} and {100 * cfg.friction_error:.0f} % more); try a lower max_speed "
+                                "or a nearer goal")
         if worst > cfg.max_topple_probability:
             raise PlanningError(f"no safe push: every push considered is predicted to topple the object (lowest "
                                 f"topple probability {worst:.2f} > max_topple_probability "

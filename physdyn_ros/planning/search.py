@@ -347,6 +347,9 @@ class Search:
         cfg = self.cfg
         k, m = cfg.robust_candidates, cfg.robust_samples
         if k == 0 or m == 0:
+            if self.physics is not None and best.cost < INFEASIBLE:  # the physics check still has the last word
+                return self._physics_checked([best] if best.risk(cfg.pessimistic) <= cfg.max_topple_probability
+                                             else [], [best])
             return best
         chosen = _distinct(elites, k)
         if not chosen:
@@ -387,9 +390,9 @@ class Search:
         checked: list[Candidate] = []
         for c in pool:
             now = time.perf_counter()
-            if now > hard or (len(checked) >= PHYSICS_MIN and now > self.deadline):
-                break
-            if c.worst_push is None and cfg.robust_samples > 0:
+            if checked and (now > hard or (len(checked) >= PHYSICS_MIN and now > self.deadline)):
+                break  # a plan is never accepted unchecked: the first push is checked whatever the time
+            if c.worst_push is None and cfg.robust_candidates > 0 and cfg.robust_samples > 0:
                 self._perturb([c], cfg.robust_samples)
                 if c.risk(cfg.pessimistic) > limit:
                     continue
@@ -402,7 +405,7 @@ class Search:
 
     def _gentler(self, best: Candidate) -> list[Candidate]:
         """The push `best` slower (GENTLER speeds) at its own contact height and at the lowest: shorter pushes
-        that tip less, for the closed loop to push again (the model's calm ones only)."""
+        that tip less, for the closed loop to push again (those within the model's topple limit only)."""
         speeds = np.array(GENTLER)
         p = np.tile(best.params, (2 * len(speeds), 1))
         p[:, :2] *= np.tile(speeds, 2)[:, None]

@@ -203,7 +203,7 @@ class PlannerConfig:
     tip_check: bool = True  # also count the rigid-body tipping estimate (PushBody.tip_ratios) as topple risk
     pessimistic: bool = False  # hold the highest topple risk of the perturbed pushes to the limit, not the mean
     physics_check: bool = True  # finalists must also stay upright re-simulated on the cloud's hull (physics_check)
-    friction_error: float = 0.2  # the physics check simulates friction * (1 -/+ this)
+    friction_error: float = 0.2  # the physics check simulates the nominal friction and friction * (1 + this)
     physics_share: float = 0.15  # share of the time budget kept for the physics check
     max_spin: float = 40.0  # rad/s, pushes giving a faster initial angular velocity are infeasible (the model was
     #                         trained up to 40 rad/s: sim.push.PushConfig.max_spin)
