@@ -23,8 +23,8 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
 * CPU: the flags the kernels' libraries can use (avx2, fma, avx512f, avx512_bf16, amx_tile, amx_bf16, as lscpu
   names them) and whether the CPU has bf16 arithmetic (learn/precision.cpu_has_bf16).
 * latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (Predictor.rollout: the ROS predictor's and
-  planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud. Batch 1 runs the float32 numpy
-  kernel in every precision, so it is one figure.
+  planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud. Batch 1 runs in float32 in
+  every precision: the C kernel where it is built (learn/native.py), with the numpy kernel timed beside it.
 * pybullet: physdyn_ros.sim.simulate_from_state re-simulating the same pushes (convex hull of the same clouds, the
   dataset generator's physics settings; pybullet is single-threaded), median ms per push.
 * per-core figures (the batch, the matmul peaks, pybullet per core) count the thread's CPU time (time.thread_time):
@@ -45,10 +45,12 @@ The headline figures are those of the precision the Predictor uses at --batch (-
 where the CPU has bf16 arithmetic). Goals: on a CPU with bf16 arithmetic batched roll-outs >= 60x pybullet per
 core and >= 50 % of the bf16 matmul peak; batch 1 >= 5x faster than a pybullet push on every CPU.
 The last line is one JSON object: rollout_b1_p50_ms, rollout_b1_p99_ms, pybullet_push_ms (wall),
-pybullet_push_cpu_ms, b1_speedup_vs_pybullet, batched_traj_per_s_1thread, batched_speedup_vs_pybullet_per_core,
-matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak, kernel_fraction_of_peak (of the precision
-used), mflop_per_rollout, msg_build_ms, precision (used), cpu_flags, bf16_arithmetic, per_precision (each
-precision's batched, kernel and product figures and its peak), batch, horizon, threads. A figure that could not
+pybullet_push_cpu_ms, b1_speedup_vs_pybullet, b1_kernel (c or numpy), rollout_b1_numpy_p50_ms and
+b1_numpy_speedup_vs_pybullet (the numpy kernel timed beside the C kernel), batched_traj_per_s_1thread,
+batched_speedup_vs_pybullet_per_core, matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak,
+kernel_fraction_of_peak (of the precision used), mflop_per_rollout, msg_build_ms, precision (used), cpu_flags,
+bf16_arithmetic, per_precision (each precision's batched, kernel and product figures and its peak), batch,
+horizon, threads. A figure that could not
 be measured (no pybullet, no rclpy, no bf16 run) is null, never a traceback.
 Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
 does not depend on the weights.
@@ -275,6 +277,7 @@ def main() -> int:
 
     import torch
 
+    from physdyn_ros.learn import native
     from physdyn_ros.learn.precision import REPORTED_FLAGS, check_precision, cpu_flags, cpu_has_bf16
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.resources import DEFAULT_MODEL
@@ -308,7 +311,10 @@ def main() -> int:
           f"{flops / 1e6:.2f} MFLOP per {args.horizon}-step roll-out")
     print(f"CPU flags: {' '.join(flags) or '(none of ' + ', '.join(REPORTED_FLAGS) + ')'}; bf16 arithmetic: "
           f"{'yes' if bf16_cpu else 'no'}; precision {args.precision}: batches of {args.batch} run in {used}; "
-          f"timed: {', '.join(precisions)}; batch 1 runs in fp32 (the numpy kernel)")
+          f"timed: {', '.join(precisions)}; batch 1 runs in fp32")
+    b1_kernel = "c" if native.use_c() else "numpy"
+    print(f"batch-1 kernel: {b1_kernel} ({native.status()}); the numpy kernel is timed beside it"
+          if b1_kernel == "c" else f"batch-1 kernel: numpy (the C kernel: {native.status()})")
     if os.environ.get("OPENBLAS_CORETYPE"):
         print(f"note: OPENBLAS_CORETYPE={os.environ['OPENBLAS_CORETYPE']} (numpy's BLAS: the batch-1 path)")
 
@@ -333,6 +339,7 @@ def main() -> int:
         pyb.push(cases[0])
 
     lat: list[float] = []
+    lat_numpy: list[float] = []
     full: list[float] = []
     pyb_times: list[float] = []
     pyb_cpu: list[float] = []
@@ -356,6 +363,15 @@ def main() -> int:
                 lat.append(_timed(lambda: pred.rollout(codes[k], cases[k]["lin_vel"], cases[k]["ang_vel"],
                                                        args.horizon)))
                 lat_model.append(_timed(parts[k][0]))
+                if b1_kernel == "c":  # the same roll-out through the numpy kernel, interleaved
+                    chosen = os.environ.get(native.ENV)
+                    os.environ[native.ENV] = "numpy"
+                    lat_numpy.append(_timed(lambda: pred.rollout(codes[k], cases[k]["lin_vel"], cases[k]["ang_vel"],
+                                                                 args.horizon)))
+                    if chosen is None:
+                        os.environ.pop(native.ENV)
+                    else:
+                        os.environ[native.ENV] = chosen
                 if parts[k][1] is not None:
                     lat_head.append(_timed(parts[k][1]))
         for i in range(max(1, min(per_round, 100 // rounds))):
@@ -387,7 +403,10 @@ def main() -> int:
     pyb_cpu_s = float(np.median(pyb_cpu)) if pyb_cpu else None
     print(f"latency, {args.horizon}-step roll-out at batch 1 from a ShapeCode: p50 {p50:.2f} ms, p99 {p99:.2f} ms "
           "(Predictor.rollout: the shape feature is encoded once per object, not counted)")
-    print(f"  of which the model's roll-out alone (numpy kernel + sliding prior): p50 {pct(lat_model, 50):.2f} ms"
+    if lat_numpy:
+        print(f"  the same roll-outs through the numpy kernel: p50 {pct(lat_numpy, 50):.2f} ms "
+              f"({pct(lat_numpy, 50) / p50:.2f}x the {b1_kernel} kernel's)")
+    print(f"  of which the model's roll-out alone ({b1_kernel} kernel + sliding prior): p50 {pct(lat_model, 50):.2f} ms"
           + (f"; the whole-push topple head: p50 {pct(lat_head, 50):.2f} ms" if lat_head else "")
           + "; the rest: input checks, frames, consistency rules, integration")
     print(f"latency, encode ({len(cases[0]['cloud'])} points) + roll-out:        p50 {pct(full, 50):.2f} ms, "
@@ -457,7 +476,11 @@ def main() -> int:
     print(json.dumps({
         "rollout_b1_p50_ms": r3(p50), "rollout_b1_p99_ms": r3(p99), "pybullet_push_ms": r3(pyb_ms),
         "pybullet_push_cpu_ms": r3(pct(pyb_cpu, 50) if pyb_cpu else None),
-        "b1_speedup_vs_pybullet": r3(b1_speedup), "batched_traj_per_s_1thread": head["batched_traj_per_s_1thread"],
+        "b1_speedup_vs_pybullet": r3(b1_speedup), "b1_kernel": b1_kernel,
+        "rollout_b1_numpy_p50_ms": r3(pct(lat_numpy, 50)) if lat_numpy else r3(p50),
+        "b1_numpy_speedup_vs_pybullet": r3(pyb_ms / pct(lat_numpy, 50)) if lat_numpy and pyb_ms else
+        (r3(b1_speedup) if b1_kernel == "numpy" else None),
+        "batched_traj_per_s_1thread": head["batched_traj_per_s_1thread"],
         "batched_speedup_vs_pybullet_per_core": head["batched_speedup_vs_pybullet_per_core"],
         "matmul_gflops_1thread": head["matmul_gflops_1thread"],
         "batched_gflops_1thread": head["batched_gflops_1thread"],

@@ -252,7 +252,8 @@ class Predictor:
         "auto" (bf16 matrix products where the CPU reports avx512_bf16 or amx_bf16, else fp32), "fp32" or
         "bf16" (forced; correct on any CPU, slower than fp32 without bf16 arithmetic); ValueError otherwise.
         "auto" keeps batches under kernels.AUTO_BF16_ROWS in fp32 (bf16 is no faster there). The model card
-        states bf16's accuracy cost; batch_precision(rows) says which a batch runs in.
+        states bf16's accuracy cost; batch_precision(rows) says which a batch runs in. Batch 1 runs the C kernel
+        where it is built (learn/native.py; PHYSDYN_BATCH1_KERNEL=numpy forces the numpy kernel).
         """
         import torch
 
@@ -264,9 +265,11 @@ class Predictor:
             if not Path(path).is_file():
                 raise FileNotFoundError(f"no shipped model at {path}; train one with 'physdyn train --config "
                                         "config/model_default.yaml ...' and pass its model_best.pt")
+        from .learn.native import use_c
         from .learn.precision import resolve_precision
 
         resolve_precision(precision, device)  # refuse a wrong precision before loading anything
+        use_c()  # and a wrong batch-1 kernel (PHYSDYN_BATCH1_KERNEL)
         if threads is not None:
             torch.set_num_threads(int(threads))
         model, ckpt = load_model(path, map_location=device)

@@ -195,7 +195,10 @@ def compute() -> dict[str, np.ndarray]:
         torch.set_num_threads(threads)
 
 
-def test_rollouts_reproduce_fixture():
+def test_rollouts_reproduce_fixture(monkeypatch):
+    # batch 1 through the numpy kernel, whose bits the fixture holds; test_native_kernel bounds the C kernel's
+    # float32 rounding against it
+    monkeypatch.setenv("PHYSDYN_BATCH1_KERNEL", "numpy")
     got = compute()
     if REGEN:
         np.savez_compressed(FIXTURE, **got, build=np.array(build_env()))

@@ -37,6 +37,7 @@ import torch
 from torch import Tensor, nn
 
 from .prior import prior_constants, prior_into, prior_raw
+from .native import c_lstm_rollout, packed_weights, use_c
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
 OUT_DIM = 13
@@ -128,6 +129,7 @@ def kernel_weights(fast: dict[str, Any], cloud_scale: float) -> dict[str, Any]:
     head_np[last:last + hidden, :OUT_DIM] = 0.5 * w_out
     head_np[:, OUT_DIM:] = head_np[:, :6] * fast["gain"]
     head_np[:6, OUT_DIM:] += torch.eye(6)
+    kernel.update(packed_weights(w0, w_np))
     kernel.update(np_w0=w0, np_w=w_np, np_head=np.ascontiguousarray(head_np.numpy()),
                   np_w_feature=gates(w_x[0][6:]), np_b0=gates(bias[0]),
                   np_in=fast["in"].numpy().astype(np.float32), np_out=fast["out"].numpy().astype(np.float32),
@@ -523,7 +525,7 @@ def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Te
 
 def numpy_rollout(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarray, steps: int,
                   prior: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
-    """numpy_lstm_rollout of one object.
+    """numpy_lstm_rollout of one object (or the C kernel computing it: native.use_c).
 
     Args:
         kernel: kernel_weights' dict (of a float32 CPU model).
@@ -535,12 +537,15 @@ def numpy_rollout(kernel: dict[str, Any], feature: np.ndarray, x0: np.ndarray, x
     Returns:
         Raw outputs (steps, 13) and the inputs used (steps + 1, 6), float32.
     """
-    w0 = kernel["np_w0"].copy()  # a private copy: the layer-0 bias row carries this object's feature term
-    w0[6] = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]
+    bias0 = feature[0] @ kernel["np_w_feature"] + kernel["np_b0"]  # the layer-0 bias row: this object's feature
     args = None
     if prior is not None and len(prior):
         args = prior_constants(prior[0, 0], prior[0, 1], kernel["np_in"], kernel["np_out"], kernel["np_gain"],
                                coupling=float(prior[0, 2]))
+    if use_c():  # the same function without numpy's per-call cost
+        return c_lstm_rollout(x0, x_obs, bias0, kernel, kernel["np_head"], steps, args)
+    w0 = kernel["np_w0"].copy()  # a private copy: the bias row carries this object's feature term
+    w0[6] = bias0
     return numpy_lstm_rollout(x0, x_obs, w0, kernel["np_w"], kernel["np_head"], steps, args)
 
 

@@ -50,6 +50,7 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
     """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads), the precision of
     its batched roll-outs (auto, fp32, bf16) and its warm-up roll-outs done before the first request. Raises
     ModelLoadError with the reason."""
+    from ..learn import native
     from ..predictor import Predictor
 
     t0 = time.monotonic()
@@ -59,9 +60,11 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
         # Explicit threads: torch would otherwise start one per core in every node and oversubscribe the machine.
         predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)),
                                    precision=precision)
+        batch1 = "the C kernel" if native.use_c() else "numpy"  # ValueError for a wrong PHYSDYN_BATCH1_KERNEL
     except Exception as exc:  # noqa: BLE001 - missing, corrupt or incompatible: the node refuses to start
         raise ModelLoadError(f"cannot load model from {where}: {exc}") from exc
     node.get_logger().info(f"model {predictor.model_id} loaded from {predictor.path} on {device} "
-                           f"({num_threads} torch threads, large batches in {predictor.batch_precision(1 << 20)}) "
+                           f"({num_threads} torch threads, large batches in {predictor.batch_precision(1 << 20)}, "
+                           f"batch 1 in {batch1}) "
                            f"in {time.monotonic() - t0:.2f} s")
     return predictor
