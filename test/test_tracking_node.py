@@ -144,3 +144,49 @@ def test_the_predictor_runs_on_perception_alone(rclpy_init, tiny_model):
     assert (start.x, start.y) == (onset.pose.position.x, onset.pose.position.y)
     assert first.states[0].twist.linear.x == onset.twist.linear.x
     assert predictor.rejected == 0, predictor.last_error
+
+
+def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_init, tiny_model):
+    """Clouds at 5 Hz, an object out of view past track_timeout, a frozen sensor, a gap of several seconds and a
+    clock that goes back: the node keeps the tracks it still sees under their ids, retires the others with the
+    reason on /diagnostics (tracks_retired, last_retirement), and never hands a retired id out again."""
+    camera = tabletop_scene(100).camera
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
+        Parameter("track_com", value="footprint"), Parameter("sensor_frame", value="cam"),
+        Parameter("sensor_transform", value=camera.as_list()), Parameter("track_timeout", value=2.0)])
+    k = 0
+
+    def cloud(t: float, objects=DEFAULT_OBJECTS) -> list[str]:
+        nonlocal k
+        k += 1
+        scene = tabletop_scene(20_000, objects=list(objects), rng=np.random.default_rng(k))
+        node.on_cloud(xyz_to_cloud(scene.points, "cam", ns_to_time(int(round(t * 1e9)))))
+        return sorted(m.object_id for m in node.states)
+
+    def diagnostics() -> dict:
+        return node._diagnose()[2]
+
+    try:
+        for i in range(5):  # 5 Hz
+            assert cloud(10 + 0.2 * i) == ["object_1", "object_2", "object_3"], node.last_error
+        assert diagnostics()["tracks_retired"] == 0
+        for i in range(12):  # the third object out of view for 2.4 s, still at 5 Hz
+            assert cloud(11 + 0.2 * i, DEFAULT_OBJECTS[:2]) == ["object_1", "object_2"]
+        d = diagnostics()
+        assert d["tracks_retired"] == 1 and d["last_retirement"].startswith("object_3: not seen for 2."), d
+        assert "timeout 2 s" in d["last_retirement"]
+        assert cloud(13.4) == ["object_1", "object_2", "object_4"]  # back: a new id, object_3 is not reused
+        assert cloud(13.4) == [] and "not after the previous cloud" in node.tracking_note  # a frozen sensor
+        assert diagnostics()["tracks_retired"] == 1
+        assert cloud(13.6) == ["object_1", "object_2", "object_4"]
+        ids = cloud(18.6)  # a 5 s gap: every track is past the timeout
+        d = diagnostics()
+        assert d["tracks_retired"] == 4 and "not seen for 5.0 s" in d["last_retirement"], d
+        assert ids == ["object_5", "object_6", "object_7"]
+        assert set(cloud(12.0)) == {"object_8", "object_9", "object_10"}  # the clock went back 6.6 s (a replayed bag)
+        d = diagnostics()
+        assert d["tracks_retired"] == 7 and "time went back 6.6 s" in d["last_retirement"], d
+        assert node.refused == 0 and node.processed == k  # features from every cloud; never a crash
+    finally:
+        node.destroy_node()

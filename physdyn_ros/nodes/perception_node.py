@@ -178,6 +178,8 @@ class PerceptionNode(ManagedNode):
         self.onsets: list[ObjectState] = []  # of the last cloud, for initial_state
         self.pushes = 0  # onsets published
         self.tracking_note = ""  # the last thing pose tracking skipped, and why
+        self.retired = 0  # tracks ended (their ids are not handed out again)
+        self.last_retirement = ""  # the last one's id and why
         self.processed = 0  # clouds that gave at least one feature
         self.published = 0  # features
         self.last_error = ""
@@ -329,6 +331,10 @@ class PerceptionNode(ManagedNode):
         else:
             signatures = [shape_signature(o.points) for o in scene.objects]  # ids through fast pushes
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
+        for object_id, why in self.tracker.take_retired():
+            self.retired += 1
+            self.last_retirement = f"{object_id}: {why}"
+            self.get_logger().info(f"track {self.last_retirement}")
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
         plane = scene.plane
@@ -415,6 +421,7 @@ class PerceptionNode(ManagedNode):
             "features": self.published, "clouds_refused": self.refused, "last_refusal": self.last_error,
             "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks),
             "pose_tracks": len(self.poses.tracks), "pushes_detected": self.pushes,
+            "tracks_retired": self.retired, "last_retirement": self.last_retirement,
             "last_tracking_note": self.tracking_note}
 
     def _reject(self, msg: PointCloud2, reason: str) -> None:

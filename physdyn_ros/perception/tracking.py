@@ -66,6 +66,7 @@ class Tracker:
         self.reach, self.shape_tolerance = float(reach), float(shape_tolerance)
         self.tracks: list[Track] = []
         self.count = 0  # ids handed out so far
+        self.retired: list[tuple[str, str]] = []  # (id, why) of the tracks ended since the caller last took them
         self._last_t: float | None = None
 
     def configure(self, prefix: str, gate: float, timeout: float) -> None:
@@ -74,10 +75,21 @@ class Tracker:
 
     def _age(self, t: float) -> None:
         if self._last_t is not None and t < self._last_t - self.timeout:
-            self.tracks.clear()  # time went backwards: a replayed bag, a reset sim clock
+            # time went backwards: a replayed bag, a reset sim clock
+            why = f"time went back {self._last_t - t:.1f} s (a replayed bag, a reset clock)"
+            self.retired += [(tr.id, why) for tr in self.tracks]
+            self.tracks.clear()
             self._last_t = t
         self._last_t = t if self._last_t is None else max(self._last_t, t)
+        self.retired += [(tr.id, f"not seen for {t - tr.last_seen:.1f} s (timeout {self.timeout:g} s)")
+                         for tr in self.tracks if t - tr.last_seen > self.timeout]
         self.tracks = [tr for tr in self.tracks if t - tr.last_seen <= self.timeout]
+
+    def take_retired(self) -> list[tuple[str, str]]:
+        """(id, why) of every track ended since the last call, oldest first; an ended id is never handed out
+        again (single-object mode's fixed id aside, whose restart is listed too)."""
+        out, self.retired = self.retired, []
+        return out
 
     def _match(self, centroids: np.ndarray, t: float) -> dict[int, int]:
         """detection index -> track index, for pairs within the gate (minimum total distance)."""
@@ -154,6 +166,8 @@ class Tracker:
         scene lists them) which restarts the track; None without detections."""
         c = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
         self._age(t)
+        self.retired += [(tr.id, f"another object is followed as '{track_id}'") for tr in self.tracks
+                         if tr.id != track_id]
         self.tracks = [tr for tr in self.tracks if tr.id == track_id]
         if not len(c):
             return None
@@ -164,5 +178,7 @@ class Tracker:
             if dist[best] <= self.gate:
                 self._update(tr, c[best], t)
                 return best
+        if self.tracks:
+            self.retired.append((track_id, "lost; the id restarts on another detection (single_object)"))
         self.tracks = [self._new(c[0], t, track_id)]
         return 0
