@@ -136,7 +136,7 @@ def main() -> int:
 
     os.environ["ROS_DOMAIN_ID"] = str(args.domain if args.domain is not None else np.random.randint(101, 200))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    from physdyn_ros.launcher import DDS_PROFILE_VARS, dds_profile_env
+    from physdyn_ros.suite import DDS_PROFILE_VARS, dds_profile_env
 
     bare = {k: v for k, v in os.environ.items() if k not in DDS_PROFILE_VARS}
     profile = dds_profile_env(os.environ)  # this process talks to the node: the same profile (unless one is set)

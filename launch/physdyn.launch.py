@@ -15,11 +15,16 @@
 
     ros2 launch physdyn_ros physdyn.launch.py [params_file:=/path/to/suite.yaml] [use_sim:=false]
         [namespace:=robot1] [use_sim_time:=true] [log_level:=debug] [dds_profile:=/path/to/profile.xml]
-        [autostart:=false]
+        [autostart:=false] [state_source:=perception]
 
 The same nodes, names and params file as `physdyn up` (physdyn_ros/launcher.py); test_ros_launch.py checks that
-the two agree. With use_sim:=false the sim node is not started: feed `cloud`, `initial_twist` and
-`object_state` from your own sensors / tracker instead.
+the two agree. With use_sim:=false the sim node is not started: feed `cloud` from your own depth camera (and
+with state_source:=sim, `initial_twist` and `object_state` from your own tracker).
+
+state_source:=perception runs the suite on perception alone: config/state_source_perception.yaml is applied after
+params_file (predictor and pusher read perception's tracked_state / initial_state; the sim renders camera clouds
+at 15 Hz), as `physdyn up --state-source perception` does; the default state_source:=sim applies
+config/state_source_sim.yaml (predictor and pusher on the sim's object_state and initial_twist).
 
 Dense clouds: the nodes get the Fast DDS profile config/fastdds.xml (a 16 MB shared-memory segment) through
 FASTRTPS_DEFAULT_PROFILES_FILE / FASTDDS_DEFAULT_PROFILES_FILE, unless one is already set in the environment;
@@ -66,10 +71,14 @@ def generate_launch_description():
     default_params = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'suite.yaml')
     default_dds_profile = os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'fastdds.xml')
     params_file = LaunchConfiguration('params_file')
+    # config/state_source_<state_source>.yaml: the predictor's and pusher's state source (and the sim's camera)
+    overlay = [os.path.join(get_package_share_directory('physdyn_ros'), 'config', 'state_source_'),
+               LaunchConfiguration('state_source'), '.yaml']
     dds_profile = LaunchConfiguration('dds_profile')
     # autostart False: this file drives the transitions (managed() below), the nodes do not start themselves
     common = dict(namespace=LaunchConfiguration('namespace'), output='screen',
-                  parameters=[params_file, {'use_sim_time': LaunchConfiguration('use_sim_time'), 'autostart': False}],
+                  parameters=[params_file, overlay,
+                              {'use_sim_time': LaunchConfiguration('use_sim_time'), 'autostart': False}],
                   ros_arguments=['--log-level', LaunchConfiguration('log_level')])
     return LaunchDescription([
         DeclareLaunchArgument('namespace', default_value='', description='ROS namespace of every node'),
@@ -88,9 +97,12 @@ def generate_launch_description():
         DeclareLaunchArgument('autostart', default_value='true',
                               description='configure and activate the managed nodes; false: leave them unconfigured '
                                           'for a lifecycle manager (ros2 lifecycle set /<node> configure, activate)'),
+        DeclareLaunchArgument('state_source', default_value='sim', choices=['sim', 'perception'],
+                              description="sim: predictor and pusher on the sim's ground truth; perception: on "
+                                          "perception's tracking alone, the sim rendering 15 Hz camera clouds"),
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', dds_profile),
         SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', dds_profile),
-        # One line per node (names and executables as physdyn_ros/launcher.py's SPECS; test_ros_launch.py checks)
+        # One line per node (names and executables as physdyn_ros/suite.py's SPECS; test_ros_launch.py checks)
         *managed(LifecycleNode(package='physdyn_ros', executable='sim_node', name='sim',
                                condition=IfCondition(LaunchConfiguration('use_sim')), **common)),
         *managed(LifecycleNode(package='physdyn_ros', executable='perception_node', name='perception', **common)),

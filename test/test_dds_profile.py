@@ -19,7 +19,8 @@ import os
 import subprocess
 
 from conftest import PYTHON, ROOT
-from physdyn_ros.launcher import DDS_PROFILE_VARS, Suite, dds_profile_env
+from physdyn_ros.launcher import Suite
+from physdyn_ros.suite import DDS_PROFILE_VARS, dds_profile_env
 
 PROFILE = ROOT / "config" / "fastdds.xml"
 PEER = ROOT / "test" / "dds_cloud_peer.py"

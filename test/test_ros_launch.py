@@ -29,7 +29,8 @@ import yaml
 from rclpy.parameter import Parameter
 
 from conftest import PYTHON, ROOT
-from physdyn_ros.launcher import CONFIG_NAME, LAUNCH_ARGUMENTS, NODES, Suite, known_parameters, node_command
+from physdyn_ros.launcher import LAUNCH_ARGUMENTS, Suite, node_command
+from physdyn_ros.suite import CONFIG_NAME, NODES, known_parameters
 from test_nodes_support import tiny_model  # noqa: F401 - fixture
 
 LAUNCH = ROOT / "launch" / "physdyn.launch.py"
@@ -91,8 +92,11 @@ def test_launch_file_starts_what_the_launcher_starts():
         assert n["parameters"][0] == ("LaunchConfiguration", "params_file"), n
         assert n["namespace"] == ("LaunchConfiguration", "namespace")
         assert n["ros_arguments"] == ["--log-level", ("LaunchConfiguration", "log_level")]
-        assert "'use_sim_time': LaunchConfiguration('use_sim_time')" in str(n["parameters"][1])
-        assert "'autostart': False" in str(n["parameters"][1])
+        assert n["parameters"][1] == [("os.path.join", ("get_package_share_directory", "physdyn_ros"), "config",
+                                       "state_source_"), ("LaunchConfiguration", "state_source"), ".yaml"], n
+        assert "'use_sim_time': LaunchConfiguration('use_sim_time')" in str(n["parameters"][2])
+        assert "'autostart': False" in str(n["parameters"][2])
+    assert args["state_source"] == "sim"
     # the launch file's arguments are exactly those `physdyn up` offers
     assert set(args) == set(LAUNCH_ARGUMENTS)
     import argparse
@@ -159,10 +163,10 @@ def test_unknown_or_malformed_overrides_are_refused(tmp_path):
 
 def test_params_file_matches_the_declared_parameters(rclpy_init, tiny_model):
     """Every parameter in config/suite.yaml exists with the right type (rclpy ignores unknown ones silently), for
-    every node of the launcher's SPECS (each a managed node: its module's ManagedNode subclass)."""
+    every node of the suite's SPECS (each a managed node: its module's ManagedNode subclass)."""
     import importlib
 
-    from physdyn_ros.launcher import SPECS
+    from physdyn_ros.suite import SPECS
     from physdyn_ros.ros.lifecycle import ManagedNode
 
     config = yaml.safe_load(CONFIG.read_text())
@@ -334,3 +338,21 @@ def test_state_source_perception_sets_the_nodes_it_concerns():
             assert a.split(":=")[0] in known_parameters(node), (node, a)
     default = overrides_from_args(parser.parse_args([]))
     assert not any("state_source" in a for a in default["predictor"] + default["pusher"])
+
+
+def test_the_launch_files_state_source_overlays_name_declared_parameters():
+    """config/state_source_<sim|perception>.yaml (the launch file's overlay, choices of its state_source argument):
+    every parameter is one its node declares, with a value the node accepts, and both set the predictor's and
+    the pusher's state_source to their own name; `physdyn up --state-source perception` applies the same file."""
+    from physdyn_ros.suite import parse_overrides, state_source_overlay
+
+    text = LAUNCH.read_text()
+    assert "choices=['sim', 'perception']" in text
+    for source in ("sim", "perception"):
+        overlay = state_source_overlay(source)
+        assert overlay["predictor"] == overlay["pusher"] == [f"state_source:={source}"]
+        for node, assignments in overlay.items():
+            known = known_parameters(node)
+            for name, value in parse_overrides(node, assignments).items():
+                assert name in known and type(value) is type(known[name]), (source, node, name, value)
+    assert state_source_overlay("perception")["sim"] == ["cloud_source:=camera", "publish_cloud_rate:=15.0"]
