@@ -354,9 +354,10 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, list[str]]:
     if args.use_sim_time:
         for name in o:
             o[name].append("use_sim_time:=true")
-    if args.state_source == "perception":  # the launch file's overlay: tracking needs 15 Hz camera clouds
-        for node, assignments in state_source_overlay("perception").items():
-            o[node] += assignments
+    # the launch file's state_source overlay, as it applies it: after the params file (perception: the sim's
+    # camera at the 15 Hz tracking needs, too)
+    for node, assignments in state_source_overlay(args.state_source).items():
+        o[node] += assignments
     for item in args.param or []:
         node, sep, assignment = item.partition(":")
         if not sep or node not in o or ":=" not in assignment:

@@ -188,7 +188,8 @@ static void prior_into(float *row, const float *x, const double *c) {
 int physdyn_rollout1(const float *x0, const float *x_obs, int observed, const float *w0, const float *bias0,
                      const float *const *w, int layers, int hidden, const float *w_head, int cols, int steps,
                      const double *prior, float *out) {
-  if (layers < 1 || hidden < 1 || cols < 6 || steps < 0 || observed < 0) return -1;
+  // the prior writes outputs 0-11 and the next input's components 13, 14, 18 (cols = 13 + 6)
+  if (layers < 1 || hidden < 1 || cols < (prior != NULL ? 19 : 6) || steps < 0 || observed < 0) return -1;
   const int h = hidden, size = 6 + layers * (h + 1);
   float *z = calloc((size_t)size + (size_t)9 * h, sizeof(float));
   if (z == NULL) return -1;

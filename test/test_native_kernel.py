@@ -58,10 +58,11 @@ def _compare(kernel: dict, feature: np.ndarray, x0: np.ndarray, x_obs: np.ndarra
 needs_c = pytest.mark.skipif(not native.use_c(), reason=f"the C kernel is not in use here: {native.status()}")
 
 
-def test_the_c_kernel_is_built_and_used_on_this_machine():
+def test_the_c_kernel_is_built_and_used_on_this_machine(monkeypatch):
     """setup.sh builds it (CMakeLists.txt); on an x86-64 CPU with AVX2 and FMA batch 1 must run it."""
     from physdyn_ros.learn.precision import cpu_flags
 
+    monkeypatch.delenv(native.ENV, raising=False)
     if platform.machine() not in ("x86_64", "AMD64") or not {"avx2", "fma"} <= cpu_flags():
         pytest.skip("not an x86-64 CPU with AVX2 and FMA")
     assert native.use_c(), native.status()
@@ -160,6 +161,15 @@ def test_the_kernel_choice_and_its_refusals(monkeypatch):
 
     with pytest.raises(ValueError, match="PHYSDYN_BATCH1_KERNEL='fortran'"):  # refused at load, not per request
         Predictor.load()
+    # a library without the kernel's symbols (a stale or foreign build) is passed over, not a crash
+    foreign = native.Path(np._core._multiarray_umath.__file__)  # a shared library without the kernel
+    monkeypatch.setattr(native, "library_paths", lambda: [foreign])
+    native._load.cache_clear()
+    try:
+        monkeypatch.setenv(native.ENV, "auto")
+        assert not native.use_c() and "undefined symbol" in native.status()
+    finally:
+        native._load.cache_clear()
     # a library that is not there: "c" names why, "auto" falls back to numpy
     monkeypatch.setattr(native, "library_paths", lambda: [native.Path("/nonexistent/lib") / native.LIBRARY])
     native._load.cache_clear()
@@ -186,3 +196,6 @@ def test_weights_that_do_not_fit_the_layout_are_refused():
     with pytest.raises(ValueError, match="do not fit"):
         native.c_lstm_rollout(np.zeros(6, np.float32), np.zeros((0, 6), np.float32), bias0, kernel,
                               kernel["np_head"][:-1], 10)
+    with pytest.raises(ValueError, match="do not fit"):  # a head too narrow for the prior's writes
+        native.c_lstm_rollout(np.zeros(6, np.float32), np.zeros((0, 6), np.float32), bias0, kernel,
+                              np.ascontiguousarray(kernel["np_head"][:, :12]), 10)

@@ -336,8 +336,11 @@ def test_state_source_perception_sets_the_nodes_it_concerns():
     for node, assignments in o.items():
         for a in assignments:
             assert a.split(":=")[0] in known_parameters(node), (node, a)
+    # the default applies the sim overlay, as the launch file does: both set state_source, whatever the params
+    # file says, and leave the sim's cloud source alone
     default = overrides_from_args(parser.parse_args([]))
-    assert not any("state_source" in a for a in default["predictor"] + default["pusher"])
+    assert "state_source:=sim" in default["predictor"] and "state_source:=sim" in default["pusher"]
+    assert not any("cloud_source" in a for a in default["sim"])
 
 
 def test_the_launch_files_state_source_overlays_name_declared_parameters():

@@ -188,5 +188,8 @@ def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_in
         d = diagnostics()
         assert d["tracks_retired"] == 7 and "time went back 6.6 s" in d["last_retirement"], d
         assert node.refused == 0 and node.processed == k  # features from every cloud; never a crash
+        assert cloud(14.5, []) == [] and "no object" in node.last_error  # the table emptied: the tracks age
+        d = diagnostics()
+        assert d["tracks_retired"] == 10 and d["tracked_objects"] == 0, d
     finally:
         node.destroy_node()

@@ -34,6 +34,7 @@ ENV = "PHYSDYN_BATCH1_KERNEL"
 CHOICES = ("auto", "numpy", "c")
 LIBRARY = "libphysdyn_rollout1.so"
 PANEL = 64  # src/rollout1.c's PANEL
+COLS = 19  # the head's columns: the 13 raw outputs, then the next input (6)
 _FLOAT_P = ctypes.POINTER(ctypes.c_float)
 
 
@@ -47,22 +48,26 @@ def library_paths() -> List[Path]:
 @lru_cache(maxsize=1)
 def _load() -> Tuple[Optional[ctypes.CDLL], str]:
     """The loaded library, or None and why not."""
+    why = []
     for path in library_paths():
         if not path.is_file():
             continue
-        try:
+        try:  # a stale or foreign build (no such symbols) is passed over like a missing one
             lib = ctypes.CDLL(str(path))
-        except OSError as exc:
-            return None, f"{path}: {exc}"
-        if lib.physdyn_rollout1_simd() and not {"avx2", "fma"} <= cpu_flags():
-            return None, f"{path} is built for AVX2 and FMA, which this CPU lacks"
-        fn = lib.physdyn_rollout1
+            simd, fn = lib.physdyn_rollout1_simd, lib.physdyn_rollout1
+        except (OSError, AttributeError) as exc:
+            why.append(f"{path}: {exc}")
+            continue
+        if simd() and not {"avx2", "fma"} <= cpu_flags():
+            why.append(f"{path} is built for AVX2 and FMA, which this CPU lacks")
+            continue
         fn.restype = ctypes.c_int
         fn.argtypes = [_FLOAT_P, _FLOAT_P, ctypes.c_int, _FLOAT_P, _FLOAT_P, ctypes.POINTER(_FLOAT_P), ctypes.c_int,
                        ctypes.c_int, _FLOAT_P, ctypes.c_int, ctypes.c_int, ctypes.POINTER(ctypes.c_double),
                        _FLOAT_P]
         return lib, str(path)
-    return None, f"{LIBRARY} is not built (looked in {', '.join(str(p.parent) for p in library_paths())})"
+    return None, "; ".join(why) or (f"{LIBRARY} is not built (looked in "
+                                    f"{', '.join(str(p.parent) for p in library_paths())})")
 
 
 def status() -> str:
@@ -110,7 +115,7 @@ def c_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, bias0: np.ndarray, packed:
     hidden, layer_w = int(packed["c_hidden"]), packed["c_w"]
     layers, cols = len(layer_w) + 1, w_head.shape[1]
     x0_c, obs_c, bias_c = (np.ascontiguousarray(a, np.float32) for a in (x0, x_obs, bias0))
-    if (packed["c_w0"].size != (7 + hidden) * 4 * hidden or w_head.shape[0] != 6 + layers * (hidden + 1)
+    if (packed["c_w0"].size != (7 + hidden) * 4 * hidden or w_head.shape != (6 + layers * (hidden + 1), COLS)
             or any(m.size != (2 * hidden + 1) * 4 * hidden for m in layer_w) or x0_c.shape != (6,)
             or bias_c.shape != (4 * hidden,) or obs_c.shape[1:] != (6,) or w_head.dtype != np.float32
             or not w_head.flags.c_contiguous):

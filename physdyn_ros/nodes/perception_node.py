@@ -314,13 +314,15 @@ class PerceptionNode(ManagedNode):
         scene = segment(pts, cfg, to_table, self._rng)
         if scene.dropped:
             self.get_logger().debug(f"not objects: {'; '.join(scene.dropped)}")
-        if not scene.objects:
-            return [], self.markers(header, []), scene.reason
-        centroids = np.array([o.centroid for o in scene.objects])
         stamp_ns = time_to_ns(msg.header.stamp) or self.get_clock().now().nanoseconds
         t = stamp_ns * 1e-9
         p = self.get_parameter
         self.tracker.configure(p("id_prefix").value, p("track_gate").value, p("track_timeout").value)
+        if not scene.objects:  # the tracks still age: an emptied table retires them
+            self.tracker.update(np.zeros((0, 3)), t)
+            self._take_retired()
+            return [], self.markers(header, []), scene.reason
+        centroids = np.array([o.centroid for o in scene.objects])
         if p("single_object").value:
             chosen = self.tracker.follow(centroids, t, p("object_id").value)
             labelled = [(p("object_id").value, scene.objects[chosen])]
@@ -331,10 +333,7 @@ class PerceptionNode(ManagedNode):
         else:
             signatures = [shape_signature(o.points) for o in scene.objects]  # ids through fast pushes
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
-        for object_id, why in self.tracker.take_retired():
-            self.retired += 1
-            self.last_retirement = f"{object_id}: {why}"
-            self.get_logger().info(f"track {self.last_retirement}")
+        self._take_retired()
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
         plane = scene.plane
@@ -349,6 +348,12 @@ class PerceptionNode(ManagedNode):
         if p("track_poses").value:
             self.track(labelled, codes, heights, t, header)
         return features, self.markers(header, labelled), ""
+
+    def _take_retired(self) -> None:
+        for object_id, why in self.tracker.take_retired():
+            self.retired += 1
+            self.last_retirement = f"{object_id}: {why}"
+            self.get_logger().info(f"track {self.last_retirement}")
 
     def pose_config(self) -> PoseConfig:
         p = self.get_parameter

@@ -32,9 +32,13 @@ moves farther than `gate` beyond its predicted position between two clouds gets 
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+#: Retirements kept for a caller that has not taken them (Tracker.take_retired): the latest ones.
+RETIRED_KEPT = 64
 
 
 @dataclass
@@ -66,7 +70,8 @@ class Tracker:
         self.reach, self.shape_tolerance = float(reach), float(shape_tolerance)
         self.tracks: list[Track] = []
         self.count = 0  # ids handed out so far
-        self.retired: list[tuple[str, str]] = []  # (id, why) of the tracks ended since the caller last took them
+        # (id, why) of the tracks ended since the caller last took them (the latest RETIRED_KEPT)
+        self.retired: deque[tuple[str, str]] = deque(maxlen=RETIRED_KEPT)
         self._last_t: float | None = None
 
     def configure(self, prefix: str, gate: float, timeout: float) -> None:
@@ -88,7 +93,8 @@ class Tracker:
     def take_retired(self) -> list[tuple[str, str]]:
         """(id, why) of every track ended since the last call, oldest first; an ended id is never handed out
         again (single-object mode's fixed id aside, whose restart is listed too)."""
-        out, self.retired = self.retired, []
+        out = list(self.retired)
+        self.retired.clear()
         return out
 
     def _match(self, centroids: np.ndarray, t: float) -> dict[int, int]:
