@@ -18,10 +18,11 @@
 A pybullet world with three objects (a box, a speaker and a wedge of shapes no model was trained on) is rendered by
 the sim's depth camera (sim/camera.py, the sim node's default eye and target) every 1/15 s of simulated time; each
 cloud goes through the perception node's own processing (PerceptionNode.process: segmentation, features, tracking),
-as the node does on `cloud`. After --rest-seconds at rest, --pushes pushes by id, one every 3 s, each a random
-initial velocity (0.3-1.2 m/s along the table, spin up to 3 rad/s) of a random object, drawn so that its slide keeps
-clear of the other objects and ends in view (collisions would be pushes the bench did not make). Track ids are
-matched to the sim's ids on the first cloud (nearest position). Figures:
+as the node does on `cloud`, with the perception settings of config/state_source_perception.yaml (what
+`physdyn up --state-source perception` runs). After --rest-seconds at rest, --pushes pushes by id, one every 3 s,
+each a random initial velocity (0.3-1.2 m/s along the table, spin up to 3 rad/s) of a random object, drawn so that
+its slide keeps clear of the other objects and ends in view (collisions would be pushes the bench did not make).
+Track ids are matched to the sim's ids on the first cloud (nearest position). Figures:
   * tracked position error (tracked COM estimate vs the true COM), at rest and moving (true speed > 2 cm/s),
     median and p90; orientation error of the rotation since the first cloud (tracked vs true), median;
   * onsets: the share of pushes with an initial_state of the pushed object's track within 5 frames, the delay
@@ -139,13 +140,17 @@ def main() -> int:
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
     from physdyn_ros.sim.camera import CameraSpec, DepthCamera
+    from physdyn_ros.suite import parse_overrides, state_source_overlay
 
     torch.set_num_threads(1)
     rclpy.init()
     rng = np.random.default_rng(args.seed)
+    # the perception node as `physdyn up --state-source perception` runs it (its overlay's perception settings)
+    overlay = parse_overrides("perception", state_source_overlay("perception").get("perception", []))
     node = PerceptionNode(parameter_overrides=[Parameter("single_object", value=False),
                                                Parameter("num_threads", value=1),
-                                               Parameter("track_com", value=args.track_com)])
+                                               Parameter("track_com", value=args.track_com)]
+                          + [Parameter(k, value=v) for k, v in overlay.items()])
     predictor = Predictor.load(threads=1)
     spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), args.resolution, 60.0)
     rest_frames = int(round(args.rest_seconds * 15))
