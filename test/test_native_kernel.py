@@ -112,18 +112,10 @@ def test_the_shipped_model_agrees_with_the_numpy_kernel(observed):
 @pytest.mark.parametrize("layers,hidden,prior", [(1, 20, "sliding"), (3, 16, "none"), (2, 40, "coupled")])
 def test_other_sizes_agree_with_the_numpy_kernel(layers, hidden, prior):
     """Partial column panels (4 H not a multiple of 64), one and three layers, no prior."""
-    from physdyn_ros.learn.model import STAT_KEYS, DynamicsModel, ModelConfig
+    from test_rollout_identity import TINY_LSTM, _tiny_model
 
-    cfg = {"name": "t", "num_points": 64, "pointnet": [16, 32], "shape_mlp": [16, 8], "cell": "lstm",
-           "hidden_size": hidden, "num_layers": layers, "input_skip": True, "geometry": True, "prior": prior,
-           "max_horizon": 80}
-    model = DynamicsModel(ModelConfig.from_dict(cfg), dict(zip(STAT_KEYS, (0.5, 8.0, 0.2, 4.0, 0.03, 0.5, 0.15))))
-    gen = torch.Generator().manual_seed(layers * 100 + hidden)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.copy_(torch.randn(p.shape, generator=gen) * 0.3)
-    model.eval()
-    kernel = _kernel_of(model)
+    cfg = dict(TINY_LSTM, hidden_size=hidden, num_layers=layers, input_skip=True, geometry=True, prior=prior)
+    kernel = _kernel_of(_tiny_model(cfg, None, "", layers * 100 + hidden))  # seeded random weights
     rng = np.random.default_rng(hidden)
     feature = rng.normal(0, 1, kernel["np_w_feature"].shape[0]).astype(np.float32)
     x0 = rng.normal(0, 1, 6).astype(np.float32)
