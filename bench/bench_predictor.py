@@ -36,7 +36,8 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
   fraction of that precision's matmul peak, the same per core against pybullet; the model's roll-out alone
   (DynamicsModel.rollout_raw: no input checks, frames, topple head or integration) likewise; and the LSTM's two
   matrix products of one step at --batch alone (lstm_products_ms: the kernel's shapes), so that the kernel's
-  time splits into products and elementwise work. --batch-threads > 1 adds a multi-thread line.
+  time splits into products and elementwise work. Where the bf16 kernel's cell runs in C (learn/cell_bf16.py),
+  the same bf16 batch with the TorchScript cell is timed beside it. --batch-threads > 1 adds a multi-thread line.
 * peaks: a plain 1024^3 matmul (torch) in fp32 and in bf16 on one thread, best of 3 just before and 3 just after
   each round's batch of that precision; each round's fraction of peak uses that round's peak, the median over
   rounds is reported.
@@ -49,7 +50,8 @@ pybullet_push_cpu_ms, b1_speedup_vs_pybullet, b1_kernel (c or numpy), rollout_b1
 b1_numpy_speedup_vs_pybullet (the numpy kernel timed beside the C kernel), batched_traj_per_s_1thread,
 batched_speedup_vs_pybullet_per_core, matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak,
 kernel_fraction_of_peak (of the precision used), mflop_per_rollout, msg_build_ms, precision (used), cpu_flags,
-bf16_arithmetic, per_precision (each precision's batched, kernel and product figures and its peak), batch,
+bf16_arithmetic, per_precision (each precision's batched, kernel and product figures and its peak; for bf16 its
+cell, c or torchscript, and batched_traj_per_s_torchscript_cell), batch,
 horizon, threads. A figure that could not
 be measured (no pybullet, no rclpy, no bf16 run) is null, never a traceback.
 Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
@@ -65,7 +67,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Optional
+from contextlib import contextmanager
+from typing import Any, Iterator, Optional
 
 import numpy as np
 
@@ -224,6 +227,19 @@ def kernel_rollout(pred: Any, inputs: tuple, horizon: int, precision: str = "fp3
         return pred._model.rollout_raw(*inputs, horizon, precision=precision)
 
 
+@contextmanager
+def torchscript_cell() -> Iterator[None]:
+    """bf16 roll-outs with the TorchScript kernel's cell where the C cell would run (timed beside it)."""
+    from physdyn_ros.learn import cell_bf16
+
+    available = cell_bf16.available
+    cell_bf16.available = lambda hidden: False
+    try:
+        yield
+    finally:
+        cell_bf16.available = available
+
+
 def lstm_products(pred: Any, batch: int, precision: str) -> Optional[Any]:
     """A timer of the LSTM's matrix products of one step at `batch` rows in the kernel's shapes and precision
     (fp32: fused_lstm_rollout's addmm per layer; bf16: bf16_lstm_rollout's plain products), or None for a
@@ -277,7 +293,7 @@ def main() -> int:
 
     import torch
 
-    from physdyn_ros.learn import native
+    from physdyn_ros.learn import cell_bf16, native
     from physdyn_ros.learn.precision import REPORTED_FLAGS, check_precision, cpu_flags, cpu_has_bf16
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.resources import DEFAULT_MODEL
@@ -313,6 +329,9 @@ def main() -> int:
           f"{'yes' if bf16_cpu else 'no'}; precision {args.precision}: batches of {args.batch} run in {used}; "
           f"timed: {', '.join(precisions)}; batch 1 runs in fp32")
     b1_kernel = "c" if native.use_c() else "numpy"
+    c_cell = "bf16" in precisions and cell_bf16.available(pred._model.cfg.hidden_size)
+    print(f"bf16 kernel's cell: c ({cell_bf16.status()}); the TorchScript cell is timed beside it" if c_cell
+          else f"bf16 kernel's cell: TorchScript (the C cell: {cell_bf16.status()})")
     print(f"batch-1 kernel: {b1_kernel} ({native.status()}); the numpy kernel is timed beside it"
           if b1_kernel == "c" else f"batch-1 kernel: numpy (the C kernel: {native.status()})")
     if os.environ.get("OPENBLAS_CORETYPE"):
@@ -344,7 +363,8 @@ def main() -> int:
     pyb_times: list[float] = []
     pyb_cpu: list[float] = []
     per: dict[str, dict[str, list[float]]] = {prec: {"rate": [], "kernel_rate": [], "peak": [], "fraction": [],
-                                                     "kernel_fraction": [], "products": []} for prec in precisions}
+                                                     "kernel_fraction": [], "products": [], "ts_cell_rate": []}
+                                              for prec in precisions}
     parts = b1_parts(pred, codes[:16], cases[:16], args.horizon)
     lat_model: list[float] = []
     lat_head: list[float] = []
@@ -386,6 +406,10 @@ def main() -> int:
             peak = matmul_peak(dtypes[prec])
             t = _cpu_timed(lambda: twins[prec].rollout_batch(shapes, bv, bw, args.horizon))
             t_kernel = _cpu_timed(lambda: kernel_rollout(pred, kernel_in, args.horizon, prec))
+            if prec == "bf16" and c_cell:  # the same batch with the TorchScript cell, between the same peaks
+                with torchscript_cell():
+                    f["ts_cell_rate"].append(args.batch / _cpu_timed(
+                        lambda: twins[prec].rollout_batch(shapes, bv, bw, args.horizon)))
             if products[prec] is not None:
                 f["products"].append(min(_cpu_timed(products[prec]) for _ in range(5)))
             peak = max(peak, matmul_peak(dtypes[prec]))
@@ -442,11 +466,18 @@ def main() -> int:
                  "steps" if prod_ms else "")
               + (f"; ceiling at the peak {ceiling_rate:.0f} trajectories/s = {ceiling_rate * pyb_cpu_s:.0f}x pybullet"
                  if pyb_cpu_s else ""))
+        ts_rate = float(np.median(f["ts_cell_rate"])) if f["ts_cell_rate"] else None
+        if ts_rate:
+            print(f"  the same batch with the TorchScript cell: {ts_rate:.0f} trajectories/s, "
+                  f"{ts_rate * flops / 1e9 / peak:.0%} of the peak (the C cell {rate / ts_rate:.2f}x)")
         summary[prec] = {"batched_traj_per_s_1thread": r3(rate), "batched_gflops_1thread": r3(rate * flops / 1e9),
                          "batched_fraction_of_peak": r3(fraction), "batched_speedup_vs_pybullet_per_core": r3(speedup),
                          "kernel_traj_per_s_1thread": r3(kernel_rate), "kernel_fraction_of_peak": r3(kernel_fraction),
                          "kernel_speedup_vs_pybullet_per_core": r3(kernel_speedup), "matmul_gflops_1thread": r3(peak),
                          "lstm_products_ms_per_step": r3(prod_ms), "ceiling_traj_per_s_1thread": r3(ceiling_rate)}
+        if prec == "bf16":
+            summary[prec].update(cell="c" if c_cell else "torchscript",
+                                 batched_traj_per_s_torchscript_cell=r3(ts_rate))
     if len(precisions) > 1 and "fp32" in summary:
         for prec in precisions:
             if prec != "fp32":

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 import torch
 
-from physdyn_ros.learn import kernels
+from physdyn_ros.learn import cell_bf16, kernels
 from physdyn_ros.learn import precision as prec
 
 FIXTURE = Path(__file__).parent / "fixtures" / "regression_set.npz"
@@ -211,3 +211,71 @@ def test_bf16_kernel_branches(monkeypatch):
             part = model.rollout_raw(feature[16:32], vel[16:32], ang[16:32], 25,
                                      *(None if o is None else o[16:32] for o in obs), precision="bf16")
             assert torch.equal(part[0], raw[16:32])
+
+
+needs_c_cell = pytest.mark.skipif(not cell_bf16.available(cell_bf16.WIDTH),
+                                  reason=f"the bf16 kernel's C cell does not run here: {cell_bf16.status()}")
+
+
+def _torch_cell(g: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """bf16_lstm_rollout's cell step in torch: gates (rows, 4 H) bf16, c' (rows, H) float32 -> new c', h (bf16)."""
+    hidden = c.shape[1]
+    s = g.float().sigmoid()
+    s_i, s_f, s_o, s_g = (s[:, k * hidden:(k + 1) * hidden] for k in range(4))
+    c = c.clone().mul_(s_f).addcmul_(s_i, s_g, value=-4.0).add_(s_i, alpha=2.0)
+    return c, torch.addcmul(s_o, s_o, torch.sigmoid(c), value=-2.0).to(torch.bfloat16)
+
+
+@needs_c_cell
+def test_c_cell_step_is_torchs_up_to_float32_rounding():
+    """One cell step in C against the TorchScript kernel's arithmetic: the cell state within float32 rounding, the
+    bf16 hidden state identical but where a last-bit difference flips its rounding (one bf16 step), rows read and
+    written through strides (h is a view into the kernel's row buffer)."""
+    gen = torch.Generator().manual_seed(7)
+    rows, hidden = 37, 48
+    g = (torch.randn(rows, 4 * hidden, generator=gen) * 4.0).to(torch.bfloat16)
+    g[0, :4] = torch.tensor([90.0, -90.0, 0.0, 1e-3])  # saturated gates
+    c0 = torch.randn(rows, hidden, generator=gen) * 3.0
+    ref_c, ref_h = _torch_cell(g, c0)
+    c = c0.clone()
+    z = torch.full((rows, hidden + 20), 7.0, dtype=torch.bfloat16)
+    h = z[:, 10:10 + hidden]
+    cell, _ = cell_bf16._cell()
+    assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, hidden) == 0
+    assert torch.allclose(c, ref_c, rtol=1e-6, atol=1e-6), (c - ref_c).abs().max()
+    step = (h.float() - ref_h.float()).abs() / ref_h.float().abs().clamp_min(2.0 ** -120)
+    assert step.max() <= 2.0 ** -7 and (h != ref_h).float().mean() < 0.01
+    assert torch.all(z[:, :10] == 7.0) and torch.all(z[:, 10 + hidden:] == 7.0)  # nothing outside h written
+    assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, 40) == -1
+
+
+@needs_c_cell
+def test_c_cell_rollout_is_the_torchscript_bf16_kernel(predictors):
+    """The shipped model's bf16 roll-out through the C cell against the TorchScript bf16 kernel, 64 pushes of 60
+    steps: far closer to it than both are to float32 (the differences are the sigmoids' last bits)."""
+    model = predictors["fp32"]._model
+    gen = torch.Generator().manual_seed(8)
+    rows = 64
+    feature = torch.randn(rows, model.feature_dim, generator=gen) * 0.5
+    vel = torch.randn(rows, 3, generator=gen) * torch.tensor([0.6, 0.6, 0.0])
+    ang = torch.randn(rows, 3, generator=gen) * torch.tensor([0.3, 0.3, 3.0])
+    with torch.inference_mode():
+        c_raw, c_xs = model.rollout_raw(feature, vel, ang, 60, precision="bf16")
+        ref32, _ = model.rollout_raw(feature, vel, ang, 60, precision="fp32")
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(cell_bf16, "available", lambda hidden: False)
+            ts_raw, ts_xs = model.rollout_raw(feature, vel, ang, 60, precision="bf16")
+    assert not torch.equal(c_raw, ts_raw)  # each kernel ran
+    to_ts, to_fp32 = (c_raw - ts_raw).abs().mean().item(), (ts_raw - ref32).abs().mean().item()
+    assert to_ts < 0.25 * to_fp32, (to_ts, to_fp32)
+    assert (c_xs - ts_xs).abs().max().item() <= 0.02 * max(ts_xs.abs().max().item(), 1.0)
+
+
+def test_c_cell_takes_only_whole_vectors_of_hidden_units():
+    """Hidden sizes that are not a multiple of the cell's vector width run the TorchScript kernel."""
+    assert not cell_bf16.available(cell_bf16.WIDTH + 8)
+    with pytest.raises(RuntimeError, match="C cell cannot run"):
+        w = [torch.zeros(7 + 24, 96, dtype=torch.bfloat16)]
+        cell_bf16.c_bf16_lstm_rollout(torch.zeros(2, 6), torch.zeros(2, 0, 6), torch.zeros(2, 0), w,
+                                      torch.zeros(24, 13, dtype=torch.bfloat16), torch.zeros(0, 13), torch.zeros(13),
+                                      torch.zeros(6), 3, torch.zeros(0, 3), torch.ones(6), torch.ones(13))

@@ -16,7 +16,8 @@
     lstm_rollout        TorchScript, differentiable: training with feedback (autograd on)
     fused_lstm_rollout  TorchScript, no autograd: one product per layer and step, sigmoid only, buffers made once
     bf16_lstm_rollout   fused_lstm_rollout with bf16 matrix products (fp32 accumulation, fp32 state): batched
-                        roll-outs on CPUs with bf16 arithmetic (precision "bf16", or "auto" where the CPU has it)
+                        roll-outs on CPUs with bf16 arithmetic (precision "bf16", or "auto" where the CPU has it);
+                        where the CPU has AVX-512 BF16, cell_bf16.c_bf16_lstm_rollout, its cell step in C
     numpy_lstm_rollout  numpy, batch 1 on the CPU: the Predictor's latency path (always float32)
     mlp_rollout         the paper's memoryless MLP baseline, eagerly (not latency critical)
 
@@ -38,6 +39,7 @@ from torch import Tensor, nn
 
 from .prior import prior_constants, prior_into, prior_raw
 from .native import c_lstm_rollout, packed_weights, use_c
+from . import cell_bf16
 
 #: Per-step outputs: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12), topple logit (12).
 OUT_DIM = 13
@@ -484,12 +486,13 @@ def _compile(fn: Any) -> Any:
 lstm_rollout = _compile(lstm_rollout)
 fused_lstm_rollout = _compile(fused_lstm_rollout)
 bf16_lstm_rollout = _compile(bf16_lstm_rollout)
+_prior_raw = _compile(prior_raw)
 
 
 def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor, steps: int, prior: Tensor,
                   scale_in: Tensor, scale_out: Tensor, precision: str = "fp32") -> Tuple[Tensor, Tensor]:
     """fused_lstm_rollout over blocks of KERNEL_ROWS rows on the CPU (a block's gate buffers stay in the L2 cache),
-    or with precision "bf16" bf16_lstm_rollout over blocks of BF16_ROWS.
+    or with precision "bf16" bf16_lstm_rollout (its cell in C where cell_bf16.available) over blocks of BF16_ROWS.
 
     Args:
         kernel: kernel_weights' dict.
@@ -504,10 +507,14 @@ def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Te
         if "bf16_w" not in kernel:
             raise ValueError("precision bf16 needs a float32 model on the CPU")
         rows = BF16_ROWS
-        parts = [bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], kernel["bf16_w"],
-                                   kernel["bf16_out"], kernel["bf16_skip"], kernel["bf16_b_head"], kernel["gain"],
-                                   steps, prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out,
-                                   KERNEL_ROWS)
+        args = (kernel["bf16_w"], kernel["bf16_out"], kernel["bf16_skip"], kernel["bf16_b_head"], kernel["gain"],
+                steps)
+        c_cell = cell_bf16.available(kernel["bf16_w"][-1].shape[1] // 4)  # else the TorchScript cell
+        parts = [cell_bf16.c_bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], *args,
+                                               prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out,
+                                               _prior_raw) if c_cell else
+                 bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], *args,
+                                   prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out, KERNEL_ROWS)
                  for i in range(0, x0.shape[0], rows)]
     elif precision == "fp32":
         const0 = torch.addmm(kernel["b"][0], feature, kernel["w_feature"])

@@ -1,0 +1,123 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The bf16 batched roll-out with its LSTM cell in C (src/cell_bf16.c, in the C kernels' library that native.py
+loads): kernels.bf16_lstm_rollout's function, its products still oneDNN's, the elementwise cell step (seven torch
+passes over the gates there) one AVX-512 pass. Used where the CPU reports avx512f, avx512bw and avx512_bf16 and the
+library was built with them (available()); kernels.fused_rollout falls back to the TorchScript kernel elsewhere.
+Equal to the TorchScript kernel up to float32 rounding of the sigmoids (and the bf16 rounding of h that such a
+difference can flip), which test_precision bounds.
+"""
+from __future__ import annotations
+
+import ctypes
+from functools import lru_cache
+from typing import Callable, List, Optional, Tuple
+
+import torch
+from torch import Tensor
+
+from .native import _load
+from .precision import cpu_flags
+from .prior import prior_raw
+
+#: The CPU flags the cell is compiled for (as lscpu names them).
+FLAGS = frozenset({"avx512f", "avx512bw", "avx512_bf16"})
+#: The cell's vector width in hidden units: other hidden sizes run the TorchScript kernel.
+WIDTH = 16
+
+
+@lru_cache(maxsize=1)
+def _cell() -> Tuple[Optional[Callable[..., int]], str]:
+    lib, why = _load()
+    if lib is None:
+        return None, why
+    try:
+        simd, fn = lib.physdyn_cell_bf16_simd, lib.physdyn_lstm_cell_bf16
+    except AttributeError as exc:  # a library built before the cell existed
+        return None, str(exc)
+    if not simd():
+        return None, "the C kernels' library was built without AVX-512 BF16 (a compiler without -mavx512bf16)"
+    if not FLAGS <= cpu_flags():
+        return None, f"the CPU lacks {', '.join(sorted(FLAGS - cpu_flags()))}"
+    fn.restype = ctypes.c_int
+    fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
+                   ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
+    return fn, "the C cell (AVX-512 BF16)"
+
+
+def available(hidden: int) -> bool:
+    """Whether c_bf16_lstm_rollout runs here for a model of `hidden` units."""
+    return _cell()[0] is not None and hidden % WIDTH == 0
+
+
+def status() -> str:
+    """Which cell the bf16 kernel uses, or why not the C one."""
+    return _cell()[1]
+
+
+def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor], w_out: Tensor,
+                        w_skip: Tensor, b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
+                        scale_out: Tensor, prior_fn: Callable[..., Tensor] = prior_raw) -> Tuple[Tensor, Tensor]:
+    """kernels.bf16_lstm_rollout (its arguments but `chunk`, its row buffer and weights) with the cell in C; the
+    step loop runs in Python (a dozen calls a step, against milliseconds of products at the batches that run in
+    bf16). prior_fn: prior_raw, or its TorchScript (kernels passes it: one call instead of its two dozen)."""
+    cell, why = _cell()
+    batch, layers = x0.shape[0], len(w)
+    hidden = w[layers - 1].shape[1] // 4
+    if cell is None or hidden % WIDTH:
+        raise RuntimeError(f"the C cell cannot run: {why if cell is None else f'hidden size {hidden}'}")
+    features = feature.shape[1]
+    low = w[0].dtype
+    z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low)
+    x = x0.clone()
+    z[:, :6] = x
+    z[:, 6:6 + features] = feature
+    zx = z[:, :6]
+    cs: List[Tensor] = []
+    hs: List[Tensor] = []
+    zin: List[Tensor] = []
+    for layer in range(layers):
+        cs.append(torch.zeros(batch, hidden, dtype=x0.dtype))
+        lo = 7 + features + layer * (hidden + 1)
+        z[:, lo - 1] = 1.0
+        hs.append(z[:, lo:lo + hidden])
+        zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
+    g = torch.empty(batch, 4 * hidden, dtype=low)
+    yh = torch.empty(batch, w_out.shape[1], dtype=low)
+    ys = torch.empty(batch, steps, w_out.shape[1], dtype=x0.dtype)
+    xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype)
+    xs[:, 0] = x0
+    observed, skip, has_prior = x_obs.shape[1], w_skip.shape[0] > 0, prior.shape[0] > 0
+    calls = [(g.data_ptr(), g.stride(0), cs[i].data_ptr(), cs[i].stride(0), hs[i].data_ptr(), z.stride(0), batch,
+              hidden) for i in range(layers)]
+    for t in range(steps):
+        for layer in range(layers):
+            torch.mm(zin[layer], w[layer], out=g)
+            cell(*calls[layer])
+        y = ys[:, t]
+        torch.mm(hs[layers - 1], w_out, out=yh)
+        if skip:
+            torch.addmm(b_head, x, w_skip, out=y)
+            y.add_(yh)
+        else:
+            torch.add(yh, b_head, out=y)
+        if has_prior:
+            y[:, :12].add_(prior_fn(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out))
+        if t < observed:
+            x.copy_(x_obs[:, t])
+        else:
+            x.addcmul_(y[:, :6], gain)
+        zx.copy_(x)
+        xs[:, t + 1] = x
+    return ys, xs
