@@ -14,6 +14,7 @@
 """The perception node's tracking against the simulator's truth: three objects, depth-camera clouds at 15 Hz.
 
     .venv/bin/python bench/bench_tracking.py [--pushes 24] [--rest-seconds 60] [--resolution 320 240] [--seed 0]
+        [--goals 16]
 
 A pybullet world with three objects (a box, a speaker and a wedge of shapes no model was trained on) is rendered by
 the sim's depth camera (sim/camera.py, the sim node's default eye and target) every 1/15 s of simulated time; each
@@ -34,8 +35,12 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
   * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost);
   * perception's cost per 100k-point cloud with three objects (p50 CPU time of one thread; the node's test
     scene), and the sim's rendering and processing time per camera cloud (p50 wall).
-push_to_goal with --state-source perception is exercised by test/test_pusher_perception.py, not timed here
-(its keys are null). The last line is one JSON object with the issue's keys.
+  * push_to_goal (--goals trials, 0 for none): the four nodes in this process on the sim's 15 Hz camera clouds, one
+    object of a family or seed no model was trained on, a goal 10-18 cm away (tolerance 3 cm, any yaw, up to 3
+    pushes), run once with the suite's state_source perception overlay and once with sim on the same shape, spawn
+    and goal; a trial succeeds when the sim's truth has the object upright within the tolerance (not when the
+    pusher believes so).
+The last line is one JSON object with the issue's keys.
 """
 from __future__ import annotations
 
@@ -118,6 +123,140 @@ def perception_100k_ms() -> float:
     return 1e3 * float(np.median(cpu))
 
 
+#: push_to_goal trials: families and first seeds (no training set used them); each trial takes the first seed
+#: from there whose shape a push can slide (squat_seed)
+GOAL_SHAPES = (("box", 9101), ("speaker", 9102), ("wedge", 9103), ("cylinder", 9104), ("prism", 9105),
+               ("capsule", 9106), ("superellipsoid", 9107), ("polyhedron", 9108))
+GOAL_TOLERANCE = 0.03  # m; the yaw is free (a tracked orientation is relative to the first cloud)
+
+
+def goal_trial(source: str, category: str, seed: int, spawn: tuple, goal: tuple, timeout: float = 120.0) -> dict:
+    """One push_to_goal on the four nodes in this process, the suite's state_source overlay applied (both sources
+    on the same 15 Hz camera clouds: only where the pusher and the predictor read states differs); judged by the
+    sim's truth: the object rests upright within GOAL_TOLERANCE of the goal."""
+    import threading
+
+    from rclpy.action import ActionClient
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.parameter import Parameter
+    from scipy.spatial.transform import Rotation
+
+    from physdyn_ros.action import PushToGoal
+    from physdyn_ros.nodes.perception_node import PerceptionNode
+    from physdyn_ros.nodes.predictor_node import PredictorNode
+    from physdyn_ros.nodes.pusher_node import PusherNode
+    from physdyn_ros.nodes.sim_node import SimNode
+    from physdyn_ros.ros.convert import pose, yaw_quaternion
+    from physdyn_ros.suite import parse_overrides, state_source_overlay
+
+    overlay = state_source_overlay(source)
+    camera = parse_overrides("sim", state_source_overlay("perception")["sim"])
+
+    def params(node: str, extra: dict) -> list:
+        values = {**(camera if node == "sim" else {}), **parse_overrides(node, overlay.get(node, [])), **extra}
+        return [Parameter(k, value=v) for k, v in values.items()]
+
+    tracked_id = "seen" if source == "perception" else "object"  # perception's id is never the sim's there
+    sim = SimNode(parameter_overrides=params("sim", {"category": category, "shape_seed": seed,
+                                                     "spawn_pose": [float(v) for v in spawn]}))
+    nodes = [sim, PerceptionNode(parameter_overrides=params("perception", {"object_id": tracked_id})),
+             PredictorNode(parameter_overrides=params("predictor", {})),
+             PusherNode(parameter_overrides=params("pusher", {}))]
+    import rclpy
+
+    client_node = rclpy.create_node("goal_bench_user")
+    action = ActionClient(client_node, PushToGoal, "push_to_goal")
+    executor = MultiThreadedExecutor(num_threads=8)
+    for n in nodes + [client_node]:
+        executor.add_node(n)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+
+    def wait(done, seconds: float) -> bool:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not done():
+            time.sleep(0.02)
+        return bool(done())
+
+    out = {"source": source, "shape": f"{category}:{seed}", "outcome": "no_server", "pushes": 0}
+    try:
+        predictor = nodes[2]
+        if not (action.wait_for_server(timeout_sec=20.0) and wait(lambda: tracked_id in predictor._features, 30.0)):
+            out["outcome"] = "no_feature"
+            return out
+        g = PushToGoal.Goal(object_id=tracked_id, position_tolerance=GOAL_TOLERANCE, yaw_tolerance=math.pi,
+                            max_pushes=3)
+        g.header.frame_id = "world"
+        g.goal_pose = pose([goal[0], goal[1], 0.0], yaw_quaternion(0.0))
+        sent = action.send_goal_async(g)
+        if not wait(sent.done, 20.0) or not sent.result().accepted:
+            out["outcome"] = "not_accepted"
+            return out
+        result = sent.result().get_result_async()
+        if not wait(result.done, timeout):
+            out["outcome"] = "timeout"
+            return out
+        r = result.result().result
+        pos, q, *_ = sim.sim.state(sim.object_id)
+        up = Rotation.from_quat(q).apply([0.0, 0.0, 1.0])
+        tilt = math.degrees(math.acos(float(np.clip(up[2], -1.0, 1.0))))
+        err = math.hypot(pos[0] - goal[0], pos[1] - goal[1])
+        out.update(outcome=r.outcome, pushes=int(r.pushes), true_error_m=round(err, 4),
+                   reported_error_m=round(float(r.position_error), 4), tilt_deg=round(tilt, 1),
+                   success=bool(err <= GOAL_TOLERANCE and tilt < 45.0))
+        return out
+    finally:
+        stop.set()
+        thread.join(10.0)
+        executor._work_tracker.wait(10.0)
+        deadline = time.monotonic() + 5.0
+        while not all(f.done() for f in list(executor._futures)) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        executor.shutdown(timeout_sec=5.0)
+        for n in nodes + [client_node]:
+            n.destroy_node()
+
+
+def squat_seed(category: str, seed: int) -> int:
+    """The first seed from `seed` whose shape is no taller than 0.9 times its narrower footprint side and at least
+    3 cm tall: a shape a push slides (taller ones the planner mostly refuses in both modes, which would measure
+    nothing) and the camera sees above the table's cropped band."""
+    from physdyn_ros.shapes import resolve_shape
+
+    while True:
+        v = np.asarray(resolve_shape(category, seed).vertices)
+        size = v.max(0) - v.min(0)
+        if 0.03 <= size[2] <= 0.9 * min(size[0], size[1]):
+            return seed
+        seed += 1
+
+
+def goal_trials(n: int, seed: int, verbose: bool) -> dict:
+    """n push_to_goal trials, each with state_source perception and with sim on the same shape, spawn and goal:
+    the success fractions (None when n is 0)."""
+    rng = np.random.default_rng(seed + 1000)
+    results: dict[str, list[bool]] = {"perception": [], "sim": []}
+    for k in range(n):
+        category, shape_seed = GOAL_SHAPES[k % len(GOAL_SHAPES)]
+        spawn = (*rng.uniform(-0.06, 0.06, 2), float(rng.uniform(-math.pi, math.pi)))
+        turn, reach = rng.uniform(-math.pi, math.pi), rng.uniform(0.10, 0.18)
+        goal = tuple(np.clip([spawn[0] + reach * math.cos(turn), spawn[1] + reach * math.sin(turn)],
+                             -VIEW + 0.05, VIEW - 0.05))
+        for source in ("perception", "sim"):
+            trial = goal_trial(source, category, squat_seed(category, shape_seed + 10 * (k // len(GOAL_SHAPES))),
+                               spawn, goal)
+            results[source].append(bool(trial.get("success")))
+            if verbose:
+                print(f"  goal {k} ({source}): {trial}")
+    return {s: (round(float(np.mean(v)), 3) if v else None) for s, v in results.items()}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pushes", type=int, default=24)
@@ -126,7 +265,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--track-com", choices=("model", "footprint"), default="model",
                     help="the perception node's track_com (where a track's centre of mass is taken)")
-    ap.add_argument("--verbose", action="store_true", help="a line per push")
+    ap.add_argument("--goals", type=int, default=16,
+                    help="push_to_goal trials, each run with state_source perception and sim (0: none)")
+    ap.add_argument("--verbose", action="store_true", help="a line per push and per goal trial")
     args = ap.parse_args()
 
     import rclpy
@@ -248,6 +389,7 @@ def main() -> int:
     false_all = len(onsets) - len(used)
     cost = perception_100k_ms()
     node.destroy_node()
+    goal_success = goal_trials(args.goals, args.seed, args.verbose) if args.goals > 0 else {}
     rclpy.shutdown()
 
     def med(x) -> float | None:
@@ -270,7 +412,8 @@ def main() -> int:
         "prediction_error_truth_cm": None if not pred_ratio_true else round(100 * med(pred_ratio_true), 2),
         "id_kept_fraction": round(float(np.mean(kept)), 3) if kept else None, "pushes": len(pushes),
         "perception_p50_ms_100k": round(cost, 2), "camera_frame_p50_ms": med(frame_ms),
-        "points_per_cloud": med(n_points), "push_to_goal_success_perception": None, "push_to_goal_success_truth": None,
+        "points_per_cloud": med(n_points), "push_to_goal_success_perception": goal_success.get("perception"),
+        "push_to_goal_success_truth": goal_success.get("sim"), "push_to_goal_trials": args.goals,
     }
     print(f"{len(pushes)} pushes after {args.rest_seconds:g} s at rest; {args.resolution[0]} x {args.resolution[1]} "
           f"camera clouds at 15 Hz; three objects")
