@@ -59,8 +59,19 @@ TINY_LSTM = {"name": "tiny-lstm", "num_points": 64, "pointnet": [16, 32], "shape
 
 
 def build_env() -> str:
-    """The build whose float32 arithmetic the fixture's bits belong to."""
-    return f"torch {torch.__version__}, numpy {np.__version__}, cpu {torch.backends.cpu.get_cpu_capability()}"
+    """The build whose float32 arithmetic the fixture's bits belong to: the libraries, the instruction set they
+    dispatch to and the CPU (oneDNN's kernels differ between vendors and generations of one instruction set)."""
+    cpu = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() in ("vendor_id", "cpu family", "model") and key.strip() not in cpu:
+                cpu[key.strip()] = value.strip()
+    except OSError:
+        pass
+    model = " ".join(cpu.get(k, "?") for k in ("vendor_id", "cpu family", "model"))
+    return (f"torch {torch.__version__}, numpy {np.__version__}, cpu {torch.backends.cpu.get_cpu_capability()}"
+            f" ({model})")
 
 
 def _np(t: Any) -> np.ndarray:
