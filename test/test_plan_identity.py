@@ -22,7 +22,7 @@ the recording on purpose:
 
     PHYSDYN_REGEN_FIXTURES=1 .venv/bin/python -m pytest -q test/test_plan_identity.py
 
-The recording names the build it was made with (test_rollout_identity.build_env: torch, numpy, CPU capability and model):
+The recording names the build it was made with (test_rollout_identity.build_env: torch, numpy, CPU capability, model):
 float32 BLAS kernels differ between builds and instruction sets, so on another one the plan must still be the
 same push (every count, flag and message as recorded) and its floats equal within
 float32 rounding (OTHER_BUILD_REL), the trajectory's digest aside. Batch-1 roll-outs run the numpy kernel here
