@@ -502,7 +502,7 @@ class Predictor:
         if self._topple is not None:
             head, novelty = self._topple.assess(feats[:, :self._dynamics_dim], feats[:, self._dynamics_dim:],
                                                 vw[:, 0], vw[:, 1])
-            prob = topple_with_head(prob, head, d_rot, ang, k, lambda d: compose_rotations(q0, d))
+            prob = topple_with_head(prob, head, d_rot, ang, k, lambda rows, d: compose_rotations(q0[rows], d))
         settle(d_pos, d_rot, lin, ang, first=k + 1, dt=self.dt)
         p0 = np.asarray(p0, dtype=np.float64)[:, None]
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)

@@ -242,8 +242,8 @@ def old_predictor_run(pred, feats, headings, v0, w0, p0, q0, horizon):
         from physdyn_ros.learn.rules import topple_with_head
 
         head, _ = topple.assess(feats[:, :dim], feats[:, dim:], vel0.double().numpy(), angvel0.double().numpy())
-        prob = topple_with_head(prob, head, d_rot_w, ang_c, 0, lambda d: integrate_in_world(
-            headings, p0, q0, np.zeros_like(d), world_to_c(d, h))[1])
+        prob = topple_with_head(prob, head, d_rot_w, ang_c, 0, lambda rows, d: integrate_in_world(
+            headings[rows], p0[rows], q0[rows], np.zeros_like(d), world_to_c(d, h[rows]))[1])
     settle(d_pos, d_rot_w, lin, ang_c)
     positions, orientations = integrate_in_world(headings, p0, q0, d_pos, world_to_c(d_rot_w, h))
     return positions, orientations, lin, ang, consistent_topple(prob, orientations)
@@ -267,14 +267,16 @@ def test_predictor_equals_the_previous_predictor(shipped):
                 assert np.abs(got - r).max() <= REL * max(np.abs(r).max(), 1.0), name
 
 
+@pytest.mark.parametrize("about_z", ["none", "some", "all"])  # rows turning about z only: the running-yaw branch
 @pytest.mark.parametrize("batch", [4, 40])  # 4 x 62 quaternions: as 4x4 matrices; 40 x 62: by components
-def test_compose_rotations_equals_integrate_in_world(batch):
+def test_compose_rotations_equals_integrate_in_world(batch, about_z):
     from physdyn_ros.learn.frames import integrate_in_world
     from physdyn_ros.predictor import compose_rotations
 
     rng = np.random.default_rng(5)
     d_rot = rng.normal(size=(batch, 61, 3)) * rng.choice([0.01, 0.3, 1.5, 3.0], batch)[:, None, None]
     d_rot[0, :5] = 0.0  # exact identities
+    d_rot[{"none": [], "some": [1, 2], "all": slice(None)}[about_z], :, :2] = 0.0
     q0 = geo.quat_normalize(rng.normal(size=(batch, 4)))
     _, ref = integrate_in_world(np.zeros(batch), np.zeros((batch, 3)), q0, np.zeros_like(d_rot), d_rot)
     got = compose_rotations(q0, d_rot)

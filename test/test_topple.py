@@ -302,7 +302,7 @@ def test_the_heads_no_removes_the_step_networks_tilt():
     prob = np.full((2, h + 1), 0.9)
     prob[:, 0] = 0.0
     out = rules.topple_with_head(prob, np.array([0.1, 0.8]), d_rot, ang, 0,
-                                 lambda d: compose_rotations(np.array([[0.0, 0.0, 0.0, 1.0]] * 2), d))
+                                 lambda rows, d: compose_rotations(np.array([[0.0, 0.0, 0.0, 1.0]] * len(rows)), d))
     assert np.all(d_rot[0, :, :2] == 0) and np.all(ang[0, 1:, :2] == 0)  # head says no: flat, pure yaw
     assert np.all(d_rot[0, :, 2] == 0.05)
     assert np.all(d_rot[1, :, :2] != 0)  # head says yes: the tilt stays

@@ -124,8 +124,8 @@ def model_rollouts(model: DynamicsModel, sims: SimArrays, index: np.ndarray, hor
             head, _ = model.topple.assess(feature.cpu().numpy(), desc,
                                             seq["vel"][:, 0].numpy(), seq["angvel"][:, 0].numpy())
             p0, q0 = sims.pos[idx, 0], sims.quat[idx, 0]
-            prob = topple_with_head(prob, head, d_rot, angvel, k,
-                                    lambda d: frames.integrate_in_world(heading, p0, q0, d_pos, d)[1])
+            prob = topple_with_head(prob, head, d_rot, angvel, k, lambda rows, d: frames.integrate_in_world(
+                heading[rows], p0[rows], q0[rows], d_pos[rows], d)[1])
         settle(d_pos, d_rot, vel, angvel, first=k + 1, dt=sims.dt)
         pos, quat = frames.integrate_in_world(heading, sims.pos[idx, 0], sims.quat[idx, 0], d_pos, d_rot)
         h = heading[:, None]

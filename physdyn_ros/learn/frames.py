@@ -134,11 +134,12 @@ def compose_rotations(q0: np.ndarray, d_rot: np.ndarray) -> np.ndarray:
     """Orientations after world-fixed rotation increments: q_0 = q0, q_{t+1} = Exp(d_rot[:, t]) q_t.
 
     The rotations of integrate_in_world (which composes rotation matrices, then converts them) in a fraction of
-    the time: a parallel prefix product (log2(H + 1) batched products) of the quaternions, for few of them as
-    their left-multiplication matrices (the last column of L(q_t) is q_t), else component-wise. Plain numpy on
-    purpose, not scipy.spatial.transform (used elsewhere): this is the Predictor's batch-1 hot path, scipy has no
-    prefix product, and Rotation.from_rotvec is slower than _exp_map. test_geometry_scipy checks both against
-    scipy.
+    the time. Rows whose increments all turn about the world z axis (the Predictor's roll-outs that keep their
+    support face) are q0 turned by the running yaw, one product per step; the others are a parallel prefix
+    product (log2(H + 1) batched products) of the quaternions, for few of them as their left-multiplication
+    matrices (the last column of L(q_t) is q_t), else component-wise. Plain numpy on purpose, not
+    scipy.spatial.transform (used elsewhere): this is the Predictor's batch-1 hot path, scipy has no prefix
+    product, and Rotation.from_rotvec is slower than _exp_map. test_geometry_scipy checks both against scipy.
 
     Args:
         q0: (B, 4) start orientations (x, y, z, w; normalised here).
@@ -148,23 +149,45 @@ def compose_rotations(q0: np.ndarray, d_rot: np.ndarray) -> np.ndarray:
         (B, H + 1, 4) unit quaternions with w >= 0.
     """
     q0 = np.asarray(q0, dtype=np.float64)
-    q = np.concatenate([(q0 / np.sqrt(np.sum(q0 * q0, axis=-1, keepdims=True)))[:, None], _exp_map(d_rot)], axis=1)
+    d_rot = np.asarray(d_rot, dtype=np.float64)
+    q0 = q0 / np.sqrt(np.sum(q0 * q0, axis=-1, keepdims=True))
+    general = np.flatnonzero(np.any(d_rot[..., :2] != 0.0, axis=(1, 2)))
+    if len(general) == len(q0):
+        out = _prefix_product(q0, d_rot)
+    else:  # the running yaw costs less for all rows than selecting some
+        out = _turned_about_z(q0, d_rot[..., 2])
+        if len(general):
+            out[general] = _prefix_product(q0[general], d_rot[general])
+    return out * (np.where(out[..., 3:] < 0, -1.0, 1.0) / np.sqrt(np.sum(out * out, axis=-1, keepdims=True)))
+
+
+def _turned_about_z(q0: np.ndarray, d_yaw: np.ndarray) -> np.ndarray:
+    """(B, H + 1, 4) orientations q0 (B, 4) turned about the world z axis by the running sums of d_yaw (B, H):
+    turns about one axis add, so each is one Hamilton product (0, 0, sin(yaw/2), cos(yaw/2)) * q0."""
+    half = np.zeros((len(q0), d_yaw.shape[1] + 1))
+    np.cumsum(0.5 * d_yaw, axis=1, out=half[:, 1:])
+    s, c = np.sin(half), np.cos(half)
+    x, y, z, w = (q0[:, i, None] for i in range(4))
+    return np.stack([c * x - s * y, c * y + s * x, c * z + s * w, c * w - s * z], -1)
+
+
+def _prefix_product(q0: np.ndarray, d_rot: np.ndarray) -> np.ndarray:
+    """compose_rotations' general rows, unnormalised: unit q0 (B, 4), d_rot (B, H, 3) -> (B, H + 1, 4)."""
+    q = np.concatenate([q0[:, None], _exp_map(d_rot)], axis=1)
     n, k = q.shape[1], 1
     if q.shape[0] * n <= _SCAN_MATRICES_UP_TO:
         acc = (q[..., _L_INDEX] * _L_SIGN).reshape(q.shape[:2] + (4, 4))
         while k < n:  # later factors on the left keep the time order: acc[i] <- acc[i] @ acc[i - k]
             acc[:, k:] = np.einsum("bnij,bnjk->bnik", acc[:, k:], acc[:, :-k])
             k *= 2
-        out = acc[..., 3]
-    else:
-        x, y, z, w = (np.ascontiguousarray(q[..., i]) for i in range(4))
-        while k < n:  # q[i] <- q[i] * q[i - k] (Hamilton product, geometry.quat_multiply's formula)
-            ax, ay, az, aw = x[:, k:], y[:, k:], z[:, k:], w[:, k:]
-            bx, by, bz, bw = x[:, :-k], y[:, :-k], z[:, :-k], w[:, :-k]
-            x[:, k:], y[:, k:], z[:, k:], w[:, k:] = (aw * bx + ax * bw + ay * bz - az * by,
-                                                      aw * by - ax * bz + ay * bw + az * bx,
-                                                      aw * bz + ax * by - ay * bx + az * bw,
-                                                      aw * bw - ax * bx - ay * by - az * bz)
-            k *= 2
-        out = np.stack([x, y, z, w], -1)
-    return out * (np.where(out[..., 3:] < 0, -1.0, 1.0) / np.sqrt(np.sum(out * out, axis=-1, keepdims=True)))
+        return acc[..., 3]
+    x, y, z, w = (np.ascontiguousarray(q[..., i]) for i in range(4))
+    while k < n:  # q[i] <- q[i] * q[i - k] (Hamilton product, geometry.quat_multiply's formula)
+        ax, ay, az, aw = x[:, k:], y[:, k:], z[:, k:], w[:, k:]
+        bx, by, bz, bw = x[:, :-k], y[:, :-k], z[:, :-k], w[:, :-k]
+        x[:, k:], y[:, k:], z[:, k:], w[:, k:] = (aw * bx + ax * bw + ay * bz - az * by,
+                                                  aw * by - ax * bz + ay * bw + az * bx,
+                                                  aw * bz + ax * by - ay * bx + az * bw,
+                                                  aw * bw - ax * bx - ay * by - az * bz)
+        k *= 2
+    return np.stack([x, y, z, w], -1)

@@ -187,9 +187,10 @@ class ToppleHead(nn.Module):
         z = (x - w["mean"]) / w["std"]
         members = len(w["b3"])
         h1 = np.maximum(z @ w["w1"] + w["b1"], 0.0).reshape(len(z), members, -1)  # (B, M, H)
-        h2 = np.maximum(np.einsum("bmi,mij->bmj", h1, w["w2"]) + w["b2"], 0.0)
+        # the members' products through BLAS (numpy's einsum has no BLAS path for these: 10x slower at 1024 rows)
+        h2 = np.maximum(np.matmul(h1.transpose(1, 0, 2), w["w2"]).transpose(1, 0, 2) + w["b2"], 0.0)
         logits = np.einsum("bmj,mj->bm", h2, w["w3"]) + w["b3"]
         prob = apply_calibration(np.mean(expit(logits), axis=1), *w["calibration"])  # expit: no overflow warning
-        combined = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", z, w["precision"], z), 0.0)) / w["scale"]
+        combined = np.sqrt(np.maximum(np.sum((z @ w["precision"]) * z, axis=1), 0.0)) / w["scale"]
         novelty = np.maximum(combined, np.max(np.abs(x - w["centre"]) / w["radius"], axis=1))
         return prob, novelty
