@@ -18,8 +18,10 @@
 // hidden state rounded to bf16 (round to nearest even, as torch rounds) for the next products. In torch the same
 // step is seven passes over the gates; here it is one, in AVX-512 with the bf16 conversion instructions.
 // Built by CMakeLists.txt into the C kernels' library when the compiler has -mavx512bf16; learn/native.py calls it
-// only where the CPU reports avx512f, avx512bw and avx512_bf16.
+// only where the CPU reports avx512f, avx512bw and avx512_bf16. The same roll-out's sliding prior is here too
+// (physdyn_prior_add_f32, plain C).
 
+#include <math.h>
 #include <stdint.h>
 
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512BF16__)
@@ -107,4 +109,38 @@ int physdyn_lstm_cell_bf16(const uint16_t *gates, int64_t g_stride, float *c, in
   (void)gates; (void)g_stride; (void)c; (void)c_stride; (void)h; (void)h_stride; (void)rows; (void)hidden;
   return -1;
 #endif
+}
+
+// learn/prior.py's prior_raw (sliding_step in the network's normalised spaces) added to one step's outputs:
+// y[r, 0:12] += prior(x[r, 0:6]) for each row r, in float32 and in the order of torch's operations there (the
+// TorchScript call costs 150 us a step at 1024 rows, this loop a few). prior (rows, 3, row stride p_stride):
+// mu g, the spin deceleration and the coupling (0 or 1) of each row; scale_in (6), scale_out (12 or more);
+// dt in seconds. Only the six components sliding moves are non-zero; the others add 0.
+void physdyn_prior_add_f32(const float *x, int64_t x_stride, const float *prior, int64_t p_stride,
+                           const float *scale_in, const float *scale_out, float dt, float *y, int64_t y_stride,
+                           int64_t rows) {
+  for (int64_t r = 0; r < rows; ++r) {
+    const float *xr = x + r * x_stride, *pr = prior + r * p_stride;
+    float *yr = y + r * y_stride;
+    const float decel = pr[0], spin = pr[1], c = pr[2];
+    const float vx = xr[0] * scale_in[0], vy = xr[1] * scale_in[1], wz = xr[5] * scale_in[5];
+    const float speed = sqrtf((vx * vx + vy * vy) + 1e-12f);
+    const float w_abs = fabsf(wz), on = c > 0.0f ? 1.0f : 0.0f;
+    const float lever_w = c * decel / fmaxf(spin, 1e-9f) * w_abs;
+    const float norm = sqrtf(speed * speed + lever_w * lever_w);
+    const float a = decel * ((1.0f - on) + on * speed / norm);
+    const float alpha = spin * ((1.0f - on) + on * lever_w / norm);
+    const float dx = vx / speed, dy = vy / speed;
+    const float t_slide = fminf(speed / fmaxf(a, 1e-9f), dt);
+    const float dist = speed * t_slide - 0.5f * a * t_slide * t_slide;
+    const float slow = fmaxf(speed - a * dt, 0.0f);
+    const float sign = wz > 0.0f ? 1.0f : (wz < 0.0f ? -1.0f : 0.0f);
+    const float t_spin = fminf(w_abs / fmaxf(alpha, 1e-9f), dt);
+    const float d_yaw = sign * (w_abs * t_spin - 0.5f * alpha * t_spin * t_spin);
+    const float d_wz = sign * fmaxf(w_abs - alpha * dt, 0.0f) - wz;
+    // columns: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12)
+    const float out[12] = {slow * dx - vx, slow * dy - vy, 0.0f, 0.0f, 0.0f, d_wz,
+                           dist * dx, dist * dy, 0.0f, 0.0f, 0.0f, d_yaw};
+    for (int j = 0; j < 12; ++j) yr[j] += out[j] / scale_out[j];
+  }
 }

@@ -156,15 +156,15 @@ def test_the_kernel_choice_and_its_refusals(monkeypatch):
     # a library without the kernel's symbols (a stale or foreign build) is passed over, not a crash
     foreign = native.Path(np._core._multiarray_umath.__file__)  # a shared library without the kernel
     monkeypatch.setattr(native, "library_paths", lambda: [foreign])
-    native._load.cache_clear()
+    native.library.cache_clear()
     try:
         monkeypatch.setenv(native.ENV, "auto")
         assert not native.use_c() and "undefined symbol" in native.status()
     finally:
-        native._load.cache_clear()
+        native.library.cache_clear()
     # a library that is not there: "c" names why, "auto" falls back to numpy
     monkeypatch.setattr(native, "library_paths", lambda: [native.Path("/nonexistent/lib") / native.LIBRARY])
-    native._load.cache_clear()
+    native.library.cache_clear()
     try:
         monkeypatch.setenv(native.ENV, "c")
         with pytest.raises(ValueError, match="cannot load: libphysdyn_rollout1.so is not built"):
@@ -173,7 +173,7 @@ def test_the_kernel_choice_and_its_refusals(monkeypatch):
         assert not native.use_c()
     finally:
         monkeypatch.undo()
-        native._load.cache_clear()
+        native.library.cache_clear()
 
 
 @needs_c

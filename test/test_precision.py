@@ -240,13 +240,43 @@ def test_c_cell_step_is_torchs_up_to_float32_rounding():
     c = c0.clone()
     z = torch.full((rows, hidden + 20), 7.0, dtype=torch.bfloat16)
     h = z[:, 10:10 + hidden]
-    cell, _ = cell_bf16._cell()
+    (cell, _), _ = cell_bf16._cell()
     assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, hidden) == 0
     assert torch.allclose(c, ref_c, rtol=1e-6, atol=1e-6), (c - ref_c).abs().max()
     step = (h.float() - ref_h.float()).abs() / ref_h.float().abs().clamp_min(2.0 ** -120)
     assert step.max() <= 2.0 ** -7 and (h != ref_h).float().mean() < 0.01
     assert torch.all(z[:, :10] == 7.0) and torch.all(z[:, 10 + hidden:] == 7.0)  # nothing outside h written
     assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, 40) == -1
+
+
+@needs_c_cell
+def test_c_prior_is_prior_raw():
+    """The sliding prior in C against prior_raw, added to a step's outputs through the kernel's strides: sliding,
+    spinning, both (coupled and not), at rest and stopping within the step, equal up to float32 rounding; the
+    output columns past 12 untouched."""
+    from physdyn_ros.conventions import DT
+    from physdyn_ros.learn.prior import prior_raw
+
+    gen = torch.Generator().manual_seed(9)
+    rows = 64
+    x = torch.randn(rows, 6, generator=gen)
+    x[:8] = 0.0  # at rest
+    x[8:16, 5] = 0.0  # sliding only
+    x[16:24, :2] = 0.0  # spinning only
+    x[24:32] *= 1e-3  # stops within the step
+    prior = torch.stack([torch.rand(rows, generator=gen) * 5.0, torch.rand(rows, generator=gen) * 50.0,
+                         (torch.arange(rows) % 2).float()], 1)
+    scale_in, scale_out = torch.rand(6, generator=gen) + 0.5, torch.rand(13, generator=gen) + 0.5
+    y = torch.randn(rows, 3, 13, generator=gen)  # step 1 of a (rows, steps, 13) output block
+    before, want = y.clone(), y.clone()
+    want[:, 1, :12] += prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
+    (_, prior_add), _ = cell_bf16._cell()
+    step = y[:, 1]
+    prior_add(x.data_ptr(), x.stride(0), prior.data_ptr(), prior.stride(0), scale_in.data_ptr(), scale_out.data_ptr(),
+              DT, step.data_ptr(), step.stride(0), rows)
+    assert torch.allclose(y, want, rtol=1e-6, atol=1e-6), (y - want).abs().max()
+    assert torch.equal(y[:, 1, 12], want[:, 1, 12]) and torch.equal(y[:, 0], want[:, 0])
+    assert torch.equal(y[:8], before[:8]) and (y[8:, 1] != before[8:, 1]).any(1).all()  # rows at rest: prior 0
 
 
 @needs_c_cell

@@ -11,12 +11,13 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The bf16 batched roll-out with its LSTM cell in C (src/cell_bf16.c, in the C kernels' library that native.py
-loads): kernels.bf16_lstm_rollout's function, its products still oneDNN's, the elementwise cell step (seven torch
-passes over the gates there) one AVX-512 pass. Used where the CPU reports avx512f, avx512bw and avx512_bf16 and the
-library was built with them (available()); kernels.fused_rollout falls back to the TorchScript kernel elsewhere.
-Equal to the TorchScript kernel up to float32 rounding of the sigmoids (and the bf16 rounding of h that such a
-difference can flip), which test_precision bounds.
+"""The bf16 batched roll-out with its LSTM cell and sliding prior in C (src/cell_bf16.c, in the C kernels' library
+that native.py loads): kernels.bf16_lstm_rollout's function, its products still oneDNN's, the elementwise cell step
+(seven torch passes over the gates there) one AVX-512 pass, the prior (two dozen small torch operations) one loop.
+Used where the CPU reports avx512f, avx512bw and avx512_bf16 and the library was built with them (available());
+kernels.fused_rollout falls back to the TorchScript kernel elsewhere. Equal to the TorchScript kernel up to float32
+rounding of the sigmoids and the prior (and the bf16 rounding of h that such a difference can flip), which
+test_precision bounds.
 """
 from __future__ import annotations
 
@@ -27,9 +28,9 @@ from typing import Callable, List, Optional, Tuple
 import torch
 from torch import Tensor
 
-from .native import _load
+from .native import library
 from .precision import cpu_flags
-from .prior import prior_raw
+from ..conventions import DT
 
 #: The CPU flags the cell is compiled for (as lscpu names them).
 FLAGS = frozenset({"avx512f", "avx512bw", "avx512_bf16"})
@@ -38,12 +39,13 @@ WIDTH = 16
 
 
 @lru_cache(maxsize=1)
-def _cell() -> Tuple[Optional[Callable[..., int]], str]:
-    lib, why = _load()
+def _cell() -> Tuple[Optional[Tuple[Callable[..., int], Callable[..., None]]], str]:
+    """(the cell, the prior) from the library, or None and why not."""
+    lib, why = library()
     if lib is None:
         return None, why
     try:
-        simd, fn = lib.physdyn_cell_bf16_simd, lib.physdyn_lstm_cell_bf16
+        simd, fn, prior = lib.physdyn_cell_bf16_simd, lib.physdyn_lstm_cell_bf16, lib.physdyn_prior_add_f32
     except AttributeError as exc:  # a library built before the cell existed
         return None, str(exc)
     if not simd():
@@ -53,7 +55,10 @@ def _cell() -> Tuple[Optional[Callable[..., int]], str]:
     fn.restype = ctypes.c_int
     fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
                    ctypes.c_int64, ctypes.c_int64, ctypes.c_int64]
-    return fn, "the C cell (AVX-512 BF16)"
+    prior.restype = None
+    prior.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
+                      ctypes.c_void_p, ctypes.c_float, ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64]
+    return (fn, prior), "the C cell (AVX-512 BF16)"
 
 
 def available(hidden: int) -> bool:
@@ -68,15 +73,16 @@ def status() -> str:
 
 def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor], w_out: Tensor,
                         w_skip: Tensor, b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
-                        scale_out: Tensor, prior_fn: Callable[..., Tensor] = prior_raw) -> Tuple[Tensor, Tensor]:
-    """kernels.bf16_lstm_rollout (its arguments but `chunk`, its row buffer and weights) with the cell in C; the
-    step loop runs in Python (a dozen calls a step, against milliseconds of products at the batches that run in
-    bf16). prior_fn: prior_raw, or its TorchScript (kernels passes it: one call instead of its two dozen)."""
-    cell, why = _cell()
+                        scale_out: Tensor) -> Tuple[Tensor, Tensor]:
+    """kernels.bf16_lstm_rollout (its arguments but `chunk`, its row buffer and weights) with the cell and the
+    sliding prior in C; the step loop runs in Python (a dozen calls a step, against milliseconds of products at
+    the batches that run in bf16)."""
+    found, why = _cell()
     batch, layers = x0.shape[0], len(w)
     hidden = w[layers - 1].shape[1] // 4
-    if cell is None or hidden % WIDTH:
-        raise RuntimeError(f"the C cell cannot run: {why if cell is None else f'hidden size {hidden}'}")
+    if found is None or hidden % WIDTH:
+        raise RuntimeError(f"the C cell cannot run: {why if found is None else f'hidden size {hidden}'}")
+    cell, prior_add = found
     features = feature.shape[1]
     low = w[0].dtype
     z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low)
@@ -101,6 +107,11 @@ def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tens
     observed, skip, has_prior = x_obs.shape[1], w_skip.shape[0] > 0, prior.shape[0] > 0
     calls = [(g.data_ptr(), g.stride(0), cs[i].data_ptr(), cs[i].stride(0), hs[i].data_ptr(), z.stride(0), batch,
               hidden) for i in range(layers)]
+    if has_prior:  # float32, contiguous rows: what the C prior reads
+        prior = prior.to(torch.float32).contiguous()
+        scale_in, scale_out = (s.to(torch.float32).contiguous() for s in (scale_in, scale_out))
+        prior_call = (x.data_ptr(), x.stride(0), prior.data_ptr(), prior.stride(0), scale_in.data_ptr(),
+                      scale_out.data_ptr(), DT)
     for t in range(steps):
         for layer in range(layers):
             torch.mm(zin[layer], w[layer], out=g)
@@ -113,7 +124,7 @@ def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tens
         else:
             torch.add(yh, b_head, out=y)
         if has_prior:
-            y[:, :12].add_(prior_fn(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out))
+            prior_add(*prior_call, y.data_ptr(), y.stride(0), batch)
         if t < observed:
             x.copy_(x_obs[:, t])
         else:

@@ -486,7 +486,6 @@ def _compile(fn: Any) -> Any:
 lstm_rollout = _compile(lstm_rollout)
 fused_lstm_rollout = _compile(fused_lstm_rollout)
 bf16_lstm_rollout = _compile(bf16_lstm_rollout)
-_prior_raw = _compile(prior_raw)
 
 
 def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor, steps: int, prior: Tensor,
@@ -511,8 +510,8 @@ def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Te
                 steps)
         c_cell = cell_bf16.available(kernel["bf16_w"][-1].shape[1] // 4)  # else the TorchScript cell
         parts = [cell_bf16.c_bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], *args,
-                                               prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out,
-                                               _prior_raw) if c_cell else
+                                               prior[i:i + rows] if prior.shape[0] else prior, scale_in,
+                                               scale_out) if c_cell else
                  bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], *args,
                                    prior[i:i + rows] if prior.shape[0] else prior, scale_in, scale_out, KERNEL_ROWS)
                  for i in range(0, x0.shape[0], rows)]

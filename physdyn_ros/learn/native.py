@@ -46,8 +46,8 @@ def library_paths() -> List[Path]:
 
 
 @lru_cache(maxsize=1)
-def _load() -> Tuple[Optional[ctypes.CDLL], str]:
-    """The loaded library, or None and why not."""
+def library() -> Tuple[Optional[ctypes.CDLL], str]:
+    """The C kernels' library (loaded once; cell_bf16 finds its symbols there too), or None and why not."""
     why = []
     for path in library_paths():
         if not path.is_file():
@@ -72,7 +72,7 @@ def _load() -> Tuple[Optional[ctypes.CDLL], str]:
 
 def status() -> str:
     """Where the C kernel was loaded from, or why it is not used."""
-    return _load()[1]
+    return library()[1]
 
 
 def use_c() -> bool:
@@ -83,7 +83,7 @@ def use_c() -> bool:
         raise ValueError(f"{ENV}={choice!r}: expected one of {', '.join(CHOICES)}")
     if choice == "numpy":
         return False
-    lib, why = _load()
+    lib, why = library()
     if lib is None and choice == "c":
         raise ValueError(f"{ENV}=c, but the C kernel cannot load: {why}")
     return lib is not None
@@ -109,7 +109,7 @@ def c_lstm_rollout(x0: np.ndarray, x_obs: np.ndarray, bias0: np.ndarray, packed:
                    steps: int, prior: Optional[tuple] = None) -> Tuple[np.ndarray, np.ndarray]:
     """kernels.numpy_lstm_rollout computed by the C kernel (use_c() must be true): its x0, x_obs, w_head, steps
     and prior; its w0 and w as packed_weights, with w0's bias row (the object's feature term) as bias0 (4 H,)."""
-    lib, why = _load()
+    lib, why = library()
     if lib is None:
         raise RuntimeError(f"the C kernel cannot load: {why}")
     hidden, layer_w = int(packed["c_hidden"]), packed["c_w"]
