@@ -187,7 +187,9 @@ def goal_trial(source: str, category: str, seed: int, spawn: tuple, goal: tuple,
     out = {"source": source, "shape": f"{category}:{seed}", "outcome": "no_server", "pushes": 0}
     try:
         predictor = nodes[2]
-        if not (action.wait_for_server(timeout_sec=20.0) and wait(lambda: tracked_id in predictor._features, 30.0)):
+        if not action.wait_for_server(timeout_sec=20.0):
+            return out
+        if not wait(lambda: tracked_id in predictor._features, 30.0):
             out["outcome"] = "no_feature"
             return out
         g = PushToGoal.Goal(object_id=tracked_id, position_tolerance=GOAL_TOLERANCE, yaw_tolerance=math.pi,

@@ -71,6 +71,38 @@ def status() -> str:
     return _cell()[1]
 
 
+def row_buffers(x0: Tensor, feature: Tensor, w: List[Tensor], outputs: int, steps: int) -> Tuple[
+        Tensor, Tensor, List[Tensor], List[Tensor], List[Tensor], Tensor, Tensor, Tensor, Tensor]:
+    """The buffers of a bf16 roll-out (kernels.bf16_lstm_rollout's and c_bf16_lstm_rollout's; TorchScript
+    compiles it into the former): z, the bf16 row buffer [x, feature, 1, h_0, 1, h_1, ...] whose slices are the
+    products' inputs; x, the float32 input (z[:, :6] its bf16 copy); per layer the float32 cell state, h (a view
+    into z) and the product's input (a view into z); the bf16 gates (B, 4 H) and head product (B, outputs); the
+    outputs (B, steps, outputs) and inputs (B, steps + 1, 6), float32, the first input x0."""
+    batch, layers = x0.shape[0], len(w)
+    hidden = w[layers - 1].shape[1] // 4
+    features = feature.shape[1]
+    low, device = w[0].dtype, x0.device
+    z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low, device=device)
+    x = x0.clone()
+    z[:, :6] = x
+    z[:, 6:6 + features] = feature
+    cs: List[Tensor] = []
+    hs: List[Tensor] = []
+    zin: List[Tensor] = []
+    for layer in range(layers):
+        cs.append(torch.zeros(batch, hidden, dtype=x0.dtype, device=device))
+        lo = 7 + features + layer * (hidden + 1)  # this layer's h; its 1 column just before it
+        z[:, lo - 1] = 1.0
+        hs.append(z[:, lo:lo + hidden])
+        zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
+    g = torch.empty(batch, 4 * hidden, dtype=low, device=device)
+    yh = torch.empty(batch, outputs, dtype=low, device=device)
+    ys = torch.empty(batch, steps, outputs, dtype=x0.dtype, device=device)
+    xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype, device=device)
+    xs[:, 0] = x0
+    return z, x, cs, hs, zin, g, yh, ys, xs
+
+
 def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor], w_out: Tensor,
                         w_skip: Tensor, b_head: Tensor, gain: Tensor, steps: int, prior: Tensor, scale_in: Tensor,
                         scale_out: Tensor) -> Tuple[Tensor, Tensor]:
@@ -83,27 +115,8 @@ def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tens
     if found is None or hidden % WIDTH:
         raise RuntimeError(f"the C cell cannot run: {why if found is None else f'hidden size {hidden}'}")
     cell, prior_add = found
-    features = feature.shape[1]
-    low = w[0].dtype
-    z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low)
-    x = x0.clone()
-    z[:, :6] = x
-    z[:, 6:6 + features] = feature
+    z, x, cs, hs, zin, g, yh, ys, xs = row_buffers(x0, feature, w, w_out.shape[1], steps)
     zx = z[:, :6]
-    cs: List[Tensor] = []
-    hs: List[Tensor] = []
-    zin: List[Tensor] = []
-    for layer in range(layers):
-        cs.append(torch.zeros(batch, hidden, dtype=x0.dtype))
-        lo = 7 + features + layer * (hidden + 1)
-        z[:, lo - 1] = 1.0
-        hs.append(z[:, lo:lo + hidden])
-        zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
-    g = torch.empty(batch, 4 * hidden, dtype=low)
-    yh = torch.empty(batch, w_out.shape[1], dtype=low)
-    ys = torch.empty(batch, steps, w_out.shape[1], dtype=x0.dtype)
-    xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype)
-    xs[:, 0] = x0
     observed, skip, has_prior = x_obs.shape[1], w_skip.shape[0] > 0, prior.shape[0] > 0
     calls = [(g.data_ptr(), g.stride(0), cs[i].data_ptr(), cs[i].stride(0), hs[i].data_ptr(), z.stride(0), batch,
               hidden) for i in range(layers)]

@@ -333,26 +333,10 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
     batch = x0.shape[0]
     layers = len(w)
     hidden = w[layers - 1].shape[1] // 4
-    features = feature.shape[1]
     chunk = max(1, min(chunk, batch))
-    low = w[0].dtype
     device = x0.device
-    z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low, device=device)
-    x = x0.clone()  # the float32 input; z[:, :6] is its bf16 copy for the products
-    z[:, :6] = x
-    z[:, 6:6 + features] = feature
+    z, x, cs, hs, zin, g, yh, ys, xs = cell_bf16.row_buffers(x0, feature, w, w_out.shape[1], steps)
     zx = z[:, :6]
-    cs: List[Tensor] = []
-    hs: List[Tensor] = []
-    zin: List[Tensor] = []
-    for layer in range(layers):
-        cs.append(torch.zeros(batch, hidden, dtype=x0.dtype, device=device))
-        lo = 7 + features + layer * (hidden + 1)  # this layer's h; its 1 column just before it
-        z[:, lo - 1] = 1.0
-        hs.append(z[:, lo:lo + hidden])
-        zin.append(z[:, :lo + hidden] if layer == 0 else z[:, lo - 1 - hidden:lo + hidden])
-    g = torch.empty(batch, 4 * hidden, dtype=low, device=device)
-    yh = torch.empty(batch, w_out.shape[1], dtype=low, device=device)
     # per chunk of rows: the gates' rows, and per layer the cell state's and the hidden state's rows
     starts = list(range(0, batch, chunk))
     g_rows = [g[r:r + chunk] for r in starts]
@@ -367,9 +351,6 @@ def bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tensor
     sf_v = [v[:, hidden:2 * hidden] for v in s_v]
     so_v = [v[:, 2 * hidden:3 * hidden] for v in s_v]
     sg_v = [v[:, 3 * hidden:] for v in s_v]
-    ys = torch.empty(batch, steps, w_out.shape[1], dtype=x0.dtype, device=device)
-    xs = torch.empty(batch, steps + 1, 6, dtype=x0.dtype, device=device)
-    xs[:, 0] = x0
     observed = x_obs.shape[1]
     skip = w_skip.shape[0] > 0
     for t in range(steps):
