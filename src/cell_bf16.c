@@ -17,8 +17,8 @@
 // columns doubled) widened to float32, their sigmoids, the cell state (stored as c' = -2 c, float32) and the new
 // hidden state rounded to bf16 (round to nearest even, as torch rounds) for the next products. In torch the same
 // step is seven passes over the gates; here it is one, in AVX-512 with the bf16 conversion instructions.
-// Built by CMakeLists.txt into the C kernels' library when the compiler has -mavx512bf16; learn/native.py calls it
-// only where the CPU reports avx512f, avx512bw and avx512_bf16. The same roll-out's sliding prior is here too
+// Built by CMakeLists.txt into the C kernels' library when the compiler has -mavx512bf16; learn/cell_bf16.py calls
+// it only where the CPU reports avx512f, avx512bw and avx512_bf16. The same roll-out's sliding prior is here too
 // (physdyn_prior_add_f32, plain C).
 
 #include <math.h>
@@ -113,9 +113,14 @@ int physdyn_lstm_cell_bf16(const uint16_t *gates, int64_t g_stride, float *c, in
 
 // learn/prior.py's prior_raw (sliding_step in the network's normalised spaces) added to one step's outputs:
 // y[r, 0:12] += prior(x[r, 0:6]) for each row r, in float32 and in the order of torch's operations there (the
-// TorchScript call costs 150 us a step at 1024 rows, this loop a few). prior (rows, 3, row stride p_stride):
-// mu g, the spin deceleration and the coupling (0 or 1) of each row; scale_in (6), scale_out (12 or more);
-// dt in seconds. Only the six components sliding moves are non-zero; the others add 0.
+// TorchScript call costs 150 us a step at 1024 rows, this loop a few). sqrtf is correctly rounded, where torch's
+// float32 sqrt may differ by one ulp; NaN propagates as through torch's clamps. prior (rows, 3, row stride
+// p_stride): mu g, the spin deceleration and the coupling (0 or 1) of each row; scale_in (6), scale_out (12 or
+// more); dt in seconds. Only the six components sliding moves are non-zero; the others add 0.
+// torch's clamp_min and minimum against a constant: a NaN stays NaN (fmaxf / fminf would drop it)
+static inline float clamp_min_nan(float v, float lo) { return v != v || v > lo ? v : lo; }
+static inline float min_nan(float v, float hi) { return v != v || v < hi ? v : hi; }
+
 void physdyn_prior_add_f32(const float *x, int64_t x_stride, const float *prior, int64_t p_stride,
                            const float *scale_in, const float *scale_out, float dt, float *y, int64_t y_stride,
                            int64_t rows) {
@@ -126,18 +131,18 @@ void physdyn_prior_add_f32(const float *x, int64_t x_stride, const float *prior,
     const float vx = xr[0] * scale_in[0], vy = xr[1] * scale_in[1], wz = xr[5] * scale_in[5];
     const float speed = sqrtf((vx * vx + vy * vy) + 1e-12f);
     const float w_abs = fabsf(wz), on = c > 0.0f ? 1.0f : 0.0f;
-    const float lever_w = c * decel / fmaxf(spin, 1e-9f) * w_abs;
+    const float lever_w = c * decel / clamp_min_nan(spin, 1e-9f) * w_abs;
     const float norm = sqrtf(speed * speed + lever_w * lever_w);
     const float a = decel * ((1.0f - on) + on * speed / norm);
     const float alpha = spin * ((1.0f - on) + on * lever_w / norm);
     const float dx = vx / speed, dy = vy / speed;
-    const float t_slide = fminf(speed / fmaxf(a, 1e-9f), dt);
+    const float t_slide = min_nan(speed / clamp_min_nan(a, 1e-9f), dt);
     const float dist = speed * t_slide - 0.5f * a * t_slide * t_slide;
-    const float slow = fmaxf(speed - a * dt, 0.0f);
-    const float sign = wz > 0.0f ? 1.0f : (wz < 0.0f ? -1.0f : 0.0f);
-    const float t_spin = fminf(w_abs / fmaxf(alpha, 1e-9f), dt);
+    const float slow = clamp_min_nan(speed - a * dt, 0.0f);
+    const float sign = wz > 0.0f ? 1.0f : (wz < 0.0f ? -1.0f : 0.0f);  // 0 for 0 and NaN, as torch.sign
+    const float t_spin = min_nan(w_abs / clamp_min_nan(alpha, 1e-9f), dt);
     const float d_yaw = sign * (w_abs * t_spin - 0.5f * alpha * t_spin * t_spin);
-    const float d_wz = sign * fmaxf(w_abs - alpha * dt, 0.0f) - wz;
+    const float d_wz = sign * clamp_min_nan(w_abs - alpha * dt, 0.0f) - wz;
     // columns: d_vel (0:3), d_angvel (3:6), d_pos (6:9), d_rot (9:12)
     const float out[12] = {slow * dx - vx, slow * dy - vy, 0.0f, 0.0f, 0.0f, d_wz,
                            dist * dx, dist * dy, 0.0f, 0.0f, 0.0f, d_yaw};

@@ -83,7 +83,7 @@ def row_buffers(x0: Tensor, feature: Tensor, w: List[Tensor], outputs: int, step
     features = feature.shape[1]
     low, device = w[0].dtype, x0.device
     z = torch.zeros(batch, 7 + features + layers * (hidden + 1) - 1, dtype=low, device=device)
-    x = x0.clone()
+    x = x0.clone(memory_format=torch.contiguous_format)  # rows of 6: what the C prior reads
     z[:, :6] = x
     z[:, 6:6 + features] = feature
     cs: List[Tensor] = []
@@ -121,6 +121,9 @@ def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tens
     calls = [(g.data_ptr(), g.stride(0), cs[i].data_ptr(), cs[i].stride(0), hs[i].data_ptr(), z.stride(0), batch,
               hidden) for i in range(layers)]
     if has_prior:  # float32, contiguous rows: what the C prior reads
+        if x.dtype != torch.float32 or prior.shape != (batch, 3) or scale_in.numel() < 6 or scale_out.numel() < 12:
+            raise ValueError(f"the C prior needs float32 inputs and a ({batch}, 3) prior, got {x.dtype} and "
+                             f"{tuple(prior.shape)}")
         prior = prior.to(torch.float32).contiguous()
         scale_in, scale_out = (s.to(torch.float32).contiguous() for s in (scale_in, scale_out))
         prior_call = (x.data_ptr(), x.stride(0), prior.data_ptr(), prior.stride(0), scale_in.data_ptr(),

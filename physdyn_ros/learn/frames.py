@@ -139,7 +139,8 @@ def compose_rotations(q0: np.ndarray, d_rot: np.ndarray) -> np.ndarray:
     product (log2(H + 1) batched products) of the quaternions, for few of them as their left-multiplication
     matrices (the last column of L(q_t) is q_t), else component-wise. Plain numpy on purpose, not
     scipy.spatial.transform (used elsewhere): this is the Predictor's batch-1 hot path, scipy has no prefix
-    product, and Rotation.from_rotvec is slower than _exp_map. test_geometry_scipy checks both against scipy.
+    product, and Rotation.from_rotvec is slower than _exp_map. test_geometry_scipy checks both against scipy,
+    test_rollout_kernels all three branches against integrate_in_world.
 
     Args:
         q0: (B, 4) start orientations (x, y, z, w; normalised here).
