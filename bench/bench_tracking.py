@@ -83,6 +83,13 @@ def xyz(v) -> np.ndarray:
     return np.array([v.x, v.y, v.z])
 
 
+def frame_of(state) -> int:
+    """The bench frame of an ObjectState's stamp (frame k is stamped 1 s + k / 15 s)."""
+    from physdyn_ros.ros.convert import time_to_ns
+
+    return round((time_to_ns(state.header.stamp) - 10**9) / DT_NS)
+
+
 def free_push(sim, rng: np.random.Generator, radii: dict[str, float]) -> tuple[str, np.ndarray]:
     """A random object and a velocity (0.3-1.2 m/s) whose Coulomb slide (v^2 / (2 mu g), 30 % longer for the
     spin) keeps the two objects' bounding radii (radii: sim id -> m, about the centre of mass, any yaw) plus 3 cm
@@ -283,7 +290,7 @@ def main() -> int:
     from physdyn_ros.nodes.perception_node import PerceptionNode
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
-    from physdyn_ros.ros.convert import ns_to_time, time_to_ns
+    from physdyn_ros.ros.convert import ns_to_time
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
     from physdyn_ros.sim.camera import CameraSpec, DepthCamera
@@ -361,7 +368,7 @@ def main() -> int:
     for n, p in enumerate(pushes):
         tid = inverse.get(p["id"])
         hits = [(i, (k, s)) for i, (k, s) in enumerate(onsets) if s.object_id == tid and i not in used
-                and p["frame"] - 1 <= round((time_to_ns(s.header.stamp) - 10**9) / DT_NS) <= p["frame"] + 5]
+                and p["frame"] - 1 <= frame_of(s) <= p["frame"] + 5]
         end = min(p["frame"] + FRAMES_PER_PUSH - 1, frames - 1)
         rest_pos = truth[end][p["id"]][0]
         kept.append(len(tracked[end]) == len(OBJECTS)
@@ -369,8 +376,8 @@ def main() -> int:
                                                                            - truth[end][oid][0][:2])) == match.get(t)
                             for t, s in tracked[end].items()))
         if args.verbose:
-            near = [(round((time_to_ns(o.header.stamp) - 10**9) / DT_NS), o.object_id) for _, o in onsets
-                    if abs(round((time_to_ns(o.header.stamp) - 10**9) / DT_NS) - p["frame"]) < FRAMES_PER_PUSH]
+            near = [(frame_of(o), o.object_id) for _, o in onsets
+                    if abs(frame_of(o) - p["frame"]) < FRAMES_PER_PUSH]
             print(f"  push {n}: {p['id']} (track {tid}) at frame {p['frame']}, |v| {np.linalg.norm(p['v']):.2f}; "
                   f"onsets near: {near}; tracks at rest: {sorted(tracked[end])}, kept {kept[-1]}")
         if not hits:
@@ -379,7 +386,7 @@ def main() -> int:
         i, (k_on, s) = hits[0]
         used.add(i)
         detected.append(True)
-        delays.append(round((time_to_ns(s.header.stamp) - 10**9) / DT_NS) - p["frame"])
+        delays.append(frame_of(s) - p["frame"])
         v_est = xyz(s.twist.linear)
         speed_err.append(abs(np.linalg.norm(v_est[:2]) - np.linalg.norm(p["v"][:2])) / np.linalg.norm(p["v"][:2]))
         spin_err.append(float(np.linalg.norm(xyz(s.twist.angular) - p["w"])))
@@ -399,8 +406,7 @@ def main() -> int:
     def truly_moved(s) -> bool:
         """The onset's object moved (true speed above MOVING within 3 frames of its stamp): a collision the
         push's clearance missed, or motion after its push; a correct detection, not a false onset."""
-        f = round((time_to_ns(s.header.stamp) - 10**9) / DT_NS)
-        oid = match.get(s.object_id)
+        f, oid = frame_of(s), match.get(s.object_id)
         return oid is not None and any(float(np.linalg.norm(truth[j][oid][2][:2])) > MOVING
                                        for j in range(max(0, f - 3), min(frames, f + 4)))
 
