@@ -21,7 +21,7 @@ follow any per-axis scale.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -163,6 +163,9 @@ class Shape:
     points: np.ndarray  # (NUM_POINTS, 3) float32
     params: dict = field(default_factory=dict)  # generator parameters (procedural) or source file (loaded)
     parts: tuple[np.ndarray, ...] | None = None  # convex pieces (vertex arrays), object frame; None: not known
+    # mass properties at density 1 when they are not the mesh's (a cloud's hull holding the solid the cloud
+    # encloses, shapes.solid); unscaled shapes only
+    solid: MassProperties | None = None
     _hull: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False, repr=False)
 
     @property
@@ -178,7 +181,15 @@ class Shape:
     def mass_properties(self, scale: np.ndarray | tuple[float, float, float] = (1.0, 1.0, 1.0),
                         density: float = DEFAULT_DENSITY) -> MassProperties:
         """Mass properties of the shape scaled per axis by `scale`, at `density` kg/m^3."""
-        return mass_properties(self.vertices, self.faces, density, scale)
+        if self.solid is None:
+            return mass_properties(self.vertices, self.faces, density, scale)
+        if not np.allclose(np.asarray(scale, dtype=np.float64), 1.0):
+            raise ValueError("a shape with given mass properties (solid) cannot be scaled")
+        if not density > 0:
+            raise ValueError(f"density must be positive, got {density}")
+        s = self.solid
+        return replace(s, mass=s.volume * density, inertia=s.inertia * density,
+                       principal_moments=s.principal_moments * density)
 
     def hull(self) -> tuple[np.ndarray, np.ndarray]:
         """Convex hull (vertices, faces) of the unscaled shape (cached)."""
@@ -214,15 +225,21 @@ def make_shape(name: str, category: str, vertices: np.ndarray, faces: np.ndarray
                  points=points, params=dict(params or {}), parts=parts)
 
 
-def shape_from_points(points: np.ndarray, name: str = "hull", category: str = "points") -> Shape:
+def shape_from_points(points: np.ndarray, name: str = "hull", category: str = "points",
+                      solid: MassProperties | None = None) -> Shape:
     """A convex Shape made of the convex hull of a point cloud given in its object frame.
 
     The cloud frame is kept as is (no re-centring): its origin is taken to be the centre of mass, as for the
-    canonical clouds of a dataset. The inertia is that of the solid hull about this origin.
+    canonical clouds of a dataset. The inertia is that of the solid hull about this origin, or `solid`'s (mass
+    properties at density 1 in the same frame: the hull collides, the solid weighs).
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not np.all(np.isfinite(pts)):
         raise ValueError("point cloud contains NaN or inf")
     v, f = convex_hull(pts)
+    if solid is not None:
+        solid = replace(solid, mass=solid.volume, inertia=solid.inertia * (solid.volume / solid.mass),
+                        principal_moments=solid.principal_moments * (solid.volume / solid.mass))
     return Shape(name=name, category=category, vertices=v, faces=f, convex=True,
-                 points=np.asarray(points, dtype=np.float32).reshape(-1, 3), params={"source": "points"})
+                 points=np.asarray(points, dtype=np.float32).reshape(-1, 3), params={"source": "points"},
+                 solid=solid)
