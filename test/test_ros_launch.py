@@ -333,6 +333,7 @@ def test_state_source_perception_sets_the_nodes_it_concerns():
     o = overrides_from_args(parser.parse_args(["--state-source", "perception"]))
     assert "state_source:=perception" in o["predictor"] and "state_source:=perception" in o["pusher"]
     assert {"cloud_source:=camera", "publish_cloud_rate:=15.0"} <= set(o["sim"])
+    assert "plan_whole_cloud:=False" in o["predictor"]  # one camera's view encloses no solid to weigh
     for node, assignments in o.items():
         for a in assignments:
             assert a.split(":=")[0] in known_parameters(node), (node, a)
@@ -353,10 +354,12 @@ def test_the_launch_files_state_source_overlays_name_declared_parameters():
     assert "choices=['sim', 'perception']" in text
     for source in ("sim", "perception"):
         overlay = state_source_overlay(source)
-        assert overlay["predictor"] == overlay["pusher"] == [f"state_source:={source}"]
+        assert overlay["pusher"] == [f"state_source:={source}"]
+        assert overlay["predictor"][0] == f"state_source:={source}"
         for node, assignments in overlay.items():
             known = known_parameters(node)
             for name, value in parse_overrides(node, assignments).items():
                 assert name in known and type(value) is type(known[name]), (source, node, name, value)
     assert state_source_overlay("perception")["sim"] == ["cloud_source:=camera", "publish_cloud_rate:=15.0"]
+    assert state_source_overlay("perception")["predictor"][1:] == ["plan_whole_cloud:=False"]
     assert state_source_overlay("perception")["perception"] == ["voxel_size:=0.005"]

@@ -129,6 +129,9 @@ class PredictorNode(ManagedNode):
                 "likely than this", low=0.0, high=1.0)
         declare(self, "plan_physics_check", True, "plan_push re-simulates its finalists on the cloud's hull "
                 "(pybullet) and keeps only pushes that stay upright there too (planning.physics_check)")
+        declare(self, "plan_whole_cloud", True, "plan_push's clouds sample every side of the object (the sim's "
+                "surface clouds): the physics check weighs the solid they enclose, not their convex hull "
+                "(shapes.solid); false for one camera's view")
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)

@@ -31,11 +31,14 @@ needs an *impulse at a contact point*. This module converts one into the other:
     so the learned model knows these initial velocities.
 
 Where the numbers come from:
-* from a cloud (preferred): the solid convex hull of the observed points (open3d's qhull, via
-  physdyn_ros.shapes). COM = the hull's centroid, inertia per unit mass = the hull's (exact for convex objects;
-  for concave ones the hull slightly overestimates the radius of gyration), mass = hull volume * density (the
-  simulator's density by default; pass the real mass when it is known, it only scales J). Contacts come from
-  the points themselves.
+* from a cloud (preferred): the solid convex hull of the observed points (open3d's qhull), or, for a whole
+  cloud (`whole`: every side sampled), the solid it encloses (physdyn_ros.shapes.solid: voxels filled inside the
+  sampled surface). COM, inertia per unit mass and mass = volume * density (the simulator's density by default;
+  pass the real mass when it is known, it only scales J) are that solid's. The hull is exact for convex objects
+  only: it fills a table's legs and a dumbbell's bar, its COM comes out centimetres low and its spin response to
+  a push several times off (test/test_solid.py). The planner's body is the hull (the learned model's inputs);
+  its physics check simulates pushes on the whole cloud's solid (reweigh). Contacts come from the points
+  themselves.
 * from a ShapeCode only (a shape feature without points): a solid box with the code's half extents, rotated by
   its heading, centred at its centroid; contacts on the box's sampled faces. Cruder, reported as "box".
 """
@@ -51,6 +54,7 @@ from .. import geometry as geo
 from ..conventions import GRAVITY
 from ..perception.scene import random_rows
 from ..shapes.core import DEFAULT_DENSITY, convex_hull, mass_properties
+from ..shapes.solid import solid_mass_properties
 
 #: Points kept for contact search (a random subset of larger clouds: the cost is candidates x points).
 MAX_CONTACT_POINTS = 2048
@@ -76,7 +80,7 @@ class PushBody:
     inertia_per_mass: np.ndarray  # (3, 3) m^2, inertia about the COM / mass, table axes
     points: np.ndarray  # (N, 3) m, observed surface points relative to the COM
     tube: float  # m, half width of a line of push's tube (see the module docstring)
-    source: str  # "hull" (from points) or "box" (from a shape code's half extents)
+    source: str  # "hull" or "solid" (from points: the mass distribution's model) or "box" (a shape code's extents)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mass) and self.mass > 0):
@@ -165,6 +169,15 @@ class PushBody:
         barrier = GRAVITY * (np.sqrt(b * b + h * h) - h)
         return 0.5 * k2 * rate * rate / np.maximum(barrier, 1e-9)
 
+    def reweigh(self, other: "PushBody", lin_vel: np.ndarray, ang_vel: np.ndarray) -> np.ndarray:
+        """Angular velocities (B, 3) that `other` (the same object weighed otherwise) gets from the impulses
+        that give this body lin_vel, ang_vel (B, 3): the same J = m v along the same line, whose moment per mass
+        about this COM is (I/m) w, taken about other's COM. The linear velocities stay."""
+        v = np.atleast_2d(np.asarray(lin_vel, dtype=np.float64))
+        w = np.atleast_2d(np.asarray(ang_vel, dtype=np.float64))
+        moment = w @ self.inertia_per_mass.T + np.cross(self.com - other.com, v)
+        return np.linalg.solve(other.inertia_per_mass, moment.T).T
+
     def angular_velocity(self, lin_vel: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """(B, 3) angular velocity right after impulses m * lin_vel (B, 3) applied at contacts (B, 3)."""
         r = np.asarray(contacts, dtype=np.float64) - self.com
@@ -189,8 +202,11 @@ def _contact_points(points: np.ndarray, seed: int = 0) -> tuple[np.ndarray, floa
     return points, float(np.clip(spacing, *TUBE_RANGE))
 
 
-def body_from_cloud(cloud: np.ndarray, density: float = DEFAULT_DENSITY, mass: float | None = None) -> PushBody:
-    """PushBody of the solid convex hull of an observed cloud (N, 3) in the table frame; contacts on the cloud."""
+def body_from_cloud(cloud: np.ndarray, density: float = DEFAULT_DENSITY, mass: float | None = None,
+                    whole: bool = False) -> PushBody:
+    """PushBody of an observed cloud (N, 3) in the table frame; contacts on the cloud. Its mass distribution is
+    the solid convex hull's, or, for a `whole` cloud (every side of the object sampled), the solid the cloud
+    encloses (shapes.solid: right for concave objects too, whose hull puts the centre of mass centimetres off)."""
     pts = np.asarray(cloud, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
         raise BodyError(f"need an (N >= 4, 3) cloud to estimate the body, got shape {pts.shape}")
@@ -198,13 +214,13 @@ def body_from_cloud(cloud: np.ndarray, density: float = DEFAULT_DENSITY, mass: f
         raise BodyError("cloud contains NaN or inf")
     try:
         v, f = convex_hull(pts)
-        mp = mass_properties(v, f, density=density)
+        mp = solid_mass_properties(pts, density) if whole else mass_properties(v, f, density=density)
     except ValueError as exc:
         raise BodyError(f"cloud does not enclose a solid: {exc}") from None
     surface, tube = _contact_points(pts)
     m = mp.mass if mass is None else float(mass)
     return PushBody(com=mp.com, mass=m, inertia_per_mass=mp.inertia / mp.mass, points=surface - mp.com, tube=tube,
-                    source="hull")
+                    source="solid" if whole else "hull")
 
 
 def box_surface(half_extents: np.ndarray, spacing: float = 0.005, max_points: int = 1500) -> np.ndarray:

@@ -35,6 +35,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from .body import PushBody
 from .sim_model import HullCode, PybulletModel
 
 __all__ = ["PhysicsCheck", "PHYSICS_FRAMES"]
@@ -62,9 +63,10 @@ class PhysicsCheck:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def encode(self, points: np.ndarray) -> HullCode:
-        """The hull of `points` (N, 3), table frame, as observed at the start pose."""
-        return self.model.encode(points)
+    def encode(self, points: np.ndarray, body: Optional[PushBody] = None) -> HullCode:
+        """The hull of `points` (N, 3), table frame, as observed at the start pose; with `body`, weighing as the
+        planner's body does (its centre of mass and inertia: the pushes' velocities refer to them)."""
+        return self.model.encode(points, body)
 
     def topple_share(self, code: HullCode, nominal: Sequence[np.ndarray], perturbed: Optional[Sequence[np.ndarray]],
                      horizon: int, limit: float = 1.0) -> float:

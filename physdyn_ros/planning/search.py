@@ -59,7 +59,7 @@ from ..conventions import GRAVITY
 from ..learn.baselines import horizontal_radius
 from ..learn.prior import MIN_RADIUS
 from ..predictor import Predictor, Trajectory, TrajectoryBatch
-from .body import BodyError, PushBody
+from .body import BodyError, PushBody, body_from_cloud
 from .models import DynamicsModel
 from .physics_check import PhysicsCheck
 from .types import Goal, PlannerConfig, PlanningError, Pose2D, yaw_of
@@ -379,7 +379,18 @@ class Search:
         lowest risk (the planner refuses it with the reason)."""
         assert self.physics is not None
         cfg = self.cfg
-        hull = self.physics.encode(self.body.points + self.body.com)
+        points = self.body.points + self.body.com
+        solid = None
+        if cfg.whole_cloud and self.body.source == "hull":
+            try:  # the push as executed: the same impulses, on the solid the cloud encloses
+                solid = body_from_cloud(points, cfg.density, self.body.mass, whole=True)
+            except BodyError:
+                solid = None  # too few or flat points: the hull's own mass model
+
+        def executed(push: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+            return push if solid is None else (push[0], self.body.reweigh(solid, push[0], push[1])[0])
+
+        hull = self.physics.encode(points, solid)
         limit = cfg.max_topple_probability
         calm = sorted((c for c in self.seen if c.topple <= 0.5 * limit and c.cost < INFEASIBLE), key=lambda c: c.cost)
         safe = sorted(safe, key=lambda c: c.robust_cost)
@@ -396,8 +407,9 @@ class Search:
                 self._perturb([c], cfg.robust_samples)
                 if c.risk(cfg.pessimistic) > limit:
                     continue
-            c.physics_topple = self.physics.topple_share(hull, (c.lin_vel, c.ang_vel), c.worst_push, self.horizon,
-                                                         limit)
+            worst = None if c.worst_push is None else executed(c.worst_push)
+            c.physics_topple = self.physics.topple_share(hull, executed((c.lin_vel, c.ang_vel)), worst,
+                                                         self.horizon, limit)
             checked.append(c)
             if c.risk(cfg.pessimistic) <= limit:
                 return c

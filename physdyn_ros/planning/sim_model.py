@@ -31,7 +31,7 @@ import numpy as np
 from .. import geometry as geo
 from ..conventions import DT
 from ..predictor import TrajectoryBatch, check_cloud
-from ..shapes.core import Shape, convex_hull, mass_properties
+from ..shapes.core import MassProperties, Shape, convex_hull, mass_properties
 
 #: rad: an object that lies tilted this far at the end of a roll-out has toppled (closed_loop.observe's rule).
 TILTED = math.radians(45.0)
@@ -74,16 +74,29 @@ class PybulletModel:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def encode(self, cloud: Any) -> HullCode:
+    def encode(self, cloud: Any, body: Any = None) -> HullCode:
+        """The hull of `cloud`, a uniform solid; with `body` (a planning PushBody), weighing as that body does
+        (its mass, centre of mass and inertia: the hull collides, the body weighs)."""
         from ..shapes.core import shape_from_points
 
         pts = check_cloud(cloud)
-        v, f = convex_hull(pts)
-        com = mass_properties(v, f, density=1.0).com
         heading = float(geo.canonical_heading(pts))
         local = geo.rotate_yaw(pts - pts.mean(axis=0), -heading)
-        return HullCode(shape=shape_from_points(pts - com), centroid=com, heading=heading,
-                        half_extents=0.5 * (local.max(axis=0) - local.min(axis=0)))
+        half = 0.5 * (local.max(axis=0) - local.min(axis=0))
+        if body is not None:
+            com = np.asarray(body.com, dtype=np.float64)
+            inertia = np.asarray(body.inertia_per_mass, dtype=np.float64)
+            moments, axes = np.linalg.eigh(inertia)
+            if np.linalg.det(axes) < 0:
+                axes[:, 2] = -axes[:, 2]
+            volume = float(body.mass) / self.config.density  # the simulated body weighs what the planner's does
+            solid = MassProperties(volume=volume, mass=volume, com=np.zeros(3), inertia=inertia * volume,
+                                   principal_moments=moments * volume, principal_axes=axes)
+            return HullCode(shape=shape_from_points(pts - com, solid=solid), centroid=com, heading=heading,
+                            half_extents=half)
+        v, f = convex_hull(pts)
+        com = mass_properties(v, f, density=1.0).com
+        return HullCode(shape=shape_from_points(pts - com), centroid=com, heading=heading, half_extents=half)
 
     def rollout_batch(self, shapes: Any, lin_vels: Any, ang_vels: Any, horizon: int = 60, positions: Any = None,
                       orientations: Any = None, friction: Optional[float] = None) -> TrajectoryBatch:

@@ -211,6 +211,8 @@ class PlannerConfig:
     density: float = DEFAULT_DENSITY  # kg/m^3 for the mass estimate when no mass is given
     seed: int = 0  # candidate sampling is deterministic for a given seed
     detect_symmetry: bool = True  # a goal of unknown yaw_symmetry takes the cloud's (planning.symmetry)
+    whole_cloud: bool = True  # clouds sample every side of the object: the physics check weighs the solid they
+    #                           enclose, not their hull (shapes.solid); False for one camera's view
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",

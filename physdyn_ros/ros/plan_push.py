@@ -63,6 +63,7 @@ def planner_config(req: PlanPush.Request, param: Callable[[str], Any]):
                          min_contact_height=float(param("plan_min_contact_height")),
                          max_contact_height=float(param("plan_max_contact_height")),
                          physics_check=bool(param("plan_physics_check")),
+                         whole_cloud=bool(param("plan_whole_cloud")),
                          table=TableBounds(*bounds) if bounds else None)
 
 
