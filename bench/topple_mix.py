@@ -14,24 +14,29 @@
 """Whole-push topple decisions: the model, pybullet on the cloud's hull, and fixed mixtures of the two.
 
     .venv/bin/python bench/topple_mix.py [--data data/heldout_families] [--max-sequences 800] [--partial 0]
-        [--checkpoint physdyn_ros/models/default.pt]
+        [--checkpoint physdyn_ros/models/default.pt] [--exact-runs 0]
 
-On the same test pushes: the model's whole-push topple probability (its 60-step roll-out's highest, as
-`physdyn evaluate` scores it; --partial 1: from one camera's view with 2 mm noise), pybullet re-simulating the
-cloud's convex hull (whole cloud, true initial state) at the true friction -20 % and +20 % (toppled or not), and
-mixtures fixed in advance (no fitting on these pushes): the mean of the model and the two hull runs, and 0.6 x
-the model + 0.4 x the hulls' mean. Why: the hull finds nearly every topple of unfamiliar shapes but over-calls
-them; the model is precise but misses some (the planner's physics check, docs/planning.md, uses the hull as a
-veto for that reason). Prints F1 (precision / recall) at 0.5 and the Brier score of each, and the reliability
-of the model's and the mixture's probabilities in five bins (pushes, mean predicted, observed topple frequency);
-the last line is one JSON object {method: {f1, precision, recall, brier[, reliability]}, "pushes": n,
-"topples": k}.
+On the same test pushes: the model's whole-push topple probability (its 60-step roll-out's highest, as `physdyn
+evaluate` scores it; --partial 1: from one camera's view with 2 mm noise), pybullet re-simulating the cloud's convex
+hull (whole cloud, true initial state) at the true friction -20 % and +20 % (toppled or not), and mixtures fixed in
+advance (no fitting on these pushes): the mean of the model and the two hull runs, and 0.6 x the model + 0.4 x the
+hulls' mean. The same hull weighing as the solid the whole cloud encloses (shapes.solid, about its own estimated
+centre of mass: what the planner's physics check simulates for whole clouds), and 0.6 x the model + 0.4 x those
+runs' mean. `--exact-runs K`: the ceiling of any predictor fed these initial states, the true shape (the dataset's
+procedural shapes, rebuilt) re-simulated K times with the initial velocities perturbed by 1 % (pushing is chaotic
+near the topple boundary: a re-run does not always repeat the recorded outcome); its topple probability is the share
+of toppled runs. Why: the hull finds nearly every topple of unfamiliar shapes but over-calls them; the model is
+precise but misses some (the planner's physics check, docs/planning.md, uses the hull as a veto for that reason).
+Prints F1 (precision / recall) at 0.5 and the Brier score of each, and the reliability of the model's and the
+mixture's probabilities in five bins (pushes, mean predicted, observed topple frequency); the last line is one JSON
+object {method: {f1, precision, recall, brier[, reliability]}, "pushes": n, "topples": k}.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +55,36 @@ def scores(prob: np.ndarray, truth: np.ndarray) -> dict:
             "brier": round(float(np.mean((prob - true) ** 2)), 4)}
 
 
+def exact_topples(sims, index: np.ndarray, runs: int, horizon: int, noise: float = 0.01) -> np.ndarray:
+    """Share of `runs` re-simulations of the true shape that topple, the initial velocities scaled by 1 + N(0,
+    noise) each (the dataset's procedural shapes, rebuilt from their ids, at their scale, yaw and friction)."""
+    from scipy.spatial.transform import Rotation
+
+    from physdyn_ros.data import Dataset
+    from physdyn_ros.learn.baselines import sim_config_from_manifest
+    from physdyn_ros.shapes.procedural import make_procedural
+    from physdyn_ros.sim import SimConfig, Simulator
+    from physdyn_ros.sim.push import record
+
+    ds = Dataset(sims.root)
+    ids = {int(s["index"]): s["id"] for s in ds.shapes}
+    cfg = replace(sim_config_from_manifest(sims.manifest), collision=SimConfig().collision)
+    rng = np.random.default_rng(0)
+    out = np.zeros(len(index))
+    with Simulator(cfg) as sim:
+        for j, i in enumerate(index):
+            category, number = ids[int(sims.shape_index[i])].rsplit("_", 1)
+            shape = make_procedural(category, int(number), int(ds.manifest.get("seed", 0)))
+            yaw = float(Rotation.from_quat(sims.quat[i, 0].astype(np.float64)).as_euler("ZYX")[0])
+            for _ in range(runs):
+                sim.spawn(shape, sims.scale[i].astype(np.float64), xy=sims.pos[i, 0, :2], yaw=yaw,
+                          friction=float(sims.friction[i]))
+                sim.set_velocity(sims.lin_vel[i, 0] * (1 + noise * rng.standard_normal()),
+                                 sims.ang_vel[i, 0] * (1 + noise * rng.standard_normal()))
+                out[j] += float(record(sim, horizon + 1)["toppled"].max()) / runs
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=None, help="default: the shipped model")
@@ -57,6 +92,7 @@ def main() -> int:
     ap.add_argument("--max-sequences", type=int, default=800)
     ap.add_argument("--partial", type=float, default=0.0, help="share of the model's clouds seen by one camera")
     ap.add_argument("--friction-error", type=float, default=0.2)
+    ap.add_argument("--exact-runs", type=int, default=0, help="re-simulate the true shapes this many times (0: no)")
     args = ap.parse_args()
 
     import torch
@@ -84,11 +120,18 @@ def main() -> int:
         mu = sims.friction[index] * (1.0 + sign * args.friction_error)
         hull[name] = pybullet_resimulate(pts, sims.scale[index], *state0, mu, horizon,
                                          sims.manifest)["toppled"].max(axis=1).astype(np.float64)
+        hull["solid " + name] = pybullet_resimulate(pts, sims.scale[index], *state0, mu, horizon, sims.manifest,
+                                                    solid=True)["toppled"].max(axis=1).astype(np.float64)
     hull_mean = 0.5 * (hull["minus"] + hull["plus"])
+    solid_mean = 0.5 * (hull["solid minus"] + hull["solid plus"])
     pct = int(round(100 * args.friction_error))
     methods = {"model": p_model, f"pybullet hull mu -{pct}%": hull["minus"], f"pybullet hull mu +{pct}%": hull["plus"],
                "mean of model and both hulls": (p_model + hull["minus"] + hull["plus"]) / 3.0,
-               "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean}
+               "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean,
+               f"pybullet solid mu -{pct}%": hull["solid minus"], f"pybullet solid mu +{pct}%": hull["solid plus"],
+               "0.6 model + 0.4 solids' mean": 0.6 * p_model + 0.4 * solid_mean}
+    if args.exact_runs > 0:
+        methods[f"true shape, {args.exact_runs} runs (ceiling)"] = exact_topples(sims, index, args.exact_runs, horizon)
     result: dict = {name: scores(p, truth) for name, p in methods.items()}
     for name in ("model", "0.6 model + 0.4 hulls' mean"):  # reliability: is a predicted 0.3 a topple in 3 of 10?
         result[name]["reliability"] = calibration(methods[name], truth, bins=5)["reliability"]
