@@ -87,17 +87,12 @@ def sim_config_from_manifest(manifest: dict[str, Any]) -> Any:
 
 def pybullet_resimulate(points_obj: np.ndarray, scale: np.ndarray, pos0: np.ndarray, quat0: np.ndarray,
                         vel0: np.ndarray, angvel0: np.ndarray, friction: np.ndarray, horizon: int,
-                        manifest: Optional[dict[str, Any]] = None, solid: bool = False) -> dict[str, np.ndarray]:
+                        manifest: Optional[dict[str, Any]] = None) -> dict[str, np.ndarray]:
     """Re-simulate each sequence from its true initial state with the convex hull of its canonical cloud.
 
     points_obj (B, N, 3) object frame (origin at the COM), scale (B, 3), states (B, *) world, friction (B,)
     already perturbed by the caller. Returns (B, H+1, *) arrays pos, quat, lin_vel, ang_vel, toppled.
-    `solid`: the hull weighs as the solid the (whole) cloud encloses (shapes.solid), about that solid's own
-    centre of mass, as a robot would estimate it (the state moved to it; `pos` is then that point's path).
     """
-    from ..geometry import quat_rotate
-    from ..shapes.core import shape_from_points
-    from ..shapes.solid import solid_mass_properties
     from ..sim import Simulator, simulate_from_state  # pybullet: only the physics baseline needs it
 
     config = sim_config_from_manifest(manifest or {})
@@ -105,15 +100,7 @@ def pybullet_resimulate(points_obj: np.ndarray, scale: np.ndarray, pos0: np.ndar
     out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     with Simulator(config) as sim:
         for i in range(len(points_obj)):
-            body: Any = points_obj[i]
-            p, s, v = pos0[i], scale[i], vel0[i]
-            if solid:
-                pts = np.asarray(points_obj[i], dtype=np.float64) * np.asarray(scale[i], dtype=np.float64)
-                mp = solid_mass_properties(pts, config.density)
-                body, s = shape_from_points(pts - mp.com, solid=mp), np.ones(3)
-                rc = quat_rotate(np.asarray(quat0[i], dtype=np.float64), mp.com)
-                p, v = pos0[i] + rc, vel0[i] + np.cross(angvel0[i], rc)
-            rec = simulate_from_state(body, s, p, quat0[i], v, angvel0[i],
+            rec = simulate_from_state(points_obj[i], scale[i], pos0[i], quat0[i], vel0[i], angvel0[i],
                                       friction=float(friction[i]), num_frames=horizon + 1, config=config, sim=sim)
             for k in keys:
                 out[k].append(np.asarray(rec[k]))

@@ -24,17 +24,19 @@ walls and legs keep their one voxel). On the held-out families' whole clouds its
 the mesh's and its inertia per mass within about 10 % (the hull's: 1.4-6x the volume, inertia up to 45 % off).
 
 It needs the whole surface: one camera's view is an open shell that encloses nothing, so its "solid" is a thin
-dish on the visible side. Callers use it only for clouds they know to be whole (`cloud_view="whole"`).
+dish on the visible side. Callers use it only for clouds they know to be whole.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from .core import DEFAULT_DENSITY, MassProperties
+from .core import DEFAULT_DENSITY, MassProperties, Shape, shape_from_points
 
-__all__ = ["cloud_solid", "solid_mass_properties"]
+__all__ = ["cloud_solid", "solid_mass_properties", "solid_hull"]
 
 #: Voxels along the cloud's longest side.
 CELLS = 32
@@ -85,3 +87,14 @@ def solid_mass_properties(points: np.ndarray, density: float = DEFAULT_DENSITY) 
         axes[:, 2] = -axes[:, 2]
     return MassProperties(volume=volume, mass=mass, com=com, inertia=inertia, principal_moments=moments,
                           principal_axes=axes)
+
+
+def solid_hull(points: np.ndarray) -> tuple[Shape, np.ndarray]:
+    """The convex hull of `points` (N, 3) weighing as the solid they enclose: a Shape whose object frame is the
+    points' frame moved to that solid's centre of mass (what the simulator takes as the body's origin), and that
+    centre of mass in the points' frame. The hull collides (exact for a lone object on a plane), the solid weighs."""
+    pts = np.asarray(points, dtype=np.float64)
+    mp = solid_mass_properties(pts, 1.0)
+    com = mp.com
+    # the inertia is already about the solid's COM: the Shape's origin, so its COM there is zero
+    return shape_from_points(pts - com, solid=replace(mp, com=np.zeros(3))), com
