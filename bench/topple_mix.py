@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Whole-push topple decisions: the model, pybullet on the cloud's hull, and fixed mixtures of the two.
+"""Whole-push topple decisions: the model, pybullet on the cloud's hull and solid, and their fusion.
 
     .venv/bin/python bench/topple_mix.py [--data data/heldout_families] [--max-sequences 800] [--partial 0]
         [--checkpoint physdyn_ros/models/default.pt] [--exact-runs 0]
@@ -19,16 +19,15 @@
 On the same test pushes: the model's whole-push topple probability (its 60-step roll-out's highest, as `physdyn
 evaluate` scores it; --partial 1: from one camera's view with 2 mm noise), pybullet re-simulating the cloud's convex
 hull (whole cloud, true initial state) at the true friction -20 % and +20 % (toppled or not), and mixtures fixed in
-advance (no fitting on these pushes): the mean of the model and the two hull runs, and 0.6 x the model + 0.4 x the
-hulls' mean. The same hull weighing as the solid the whole cloud encloses (shapes.solid, about its own estimated
-centre of mass: what the planner's physics check simulates for whole clouds), and 0.6 x the model + 0.4 x those
-runs' mean. `--exact-runs K`: the ceiling of any predictor fed these initial states, the true shape (the dataset's
-procedural shapes, rebuilt) re-simulated K times with the initial velocities perturbed by 1 % (pushing is chaotic
-near the topple boundary: a re-run does not always repeat the recorded outcome); its topple probability is the share
-of toppled runs. Why: the hull finds nearly every topple of unfamiliar shapes but over-calls them; the model is
-precise but misses some (the planner's physics check, docs/planning.md, uses the hull as a veto for that reason).
+advance: the mean of the model and the two hull runs, and 0.6 x the model + 0.4 x the hulls' mean. With whole
+clouds also the hull weighing as the solid the cloud encloses (topple_fusion.SolidPhysics, about the solid's own
+centre of mass) at -20 % and +20 %, and the checkpoint's topple fusion (physdyn_ros.topple_fusion: the model and
+those runs, weights fitted on other shapes and stored beside the checkpoint). `--exact-runs K`: the ceiling of any
+predictor fed these initial states, the true shape (the dataset's procedural shapes, rebuilt) re-simulated K times
+with the initial velocities perturbed by 1 % (pushing is chaotic near the topple boundary: a re-run does not always
+repeat the recorded outcome); its topple probability is the share of toppled runs.
 Prints F1 (precision / recall) at 0.5 and the Brier score of each, and the reliability of the model's and the
-mixture's probabilities in five bins (pushes, mean predicted, observed topple frequency); the last line is one JSON
+fusion's probabilities in five bins (pushes, mean predicted, observed topple frequency); the last line is one JSON
 object {method: {f1, precision, recall, brier[, reliability]}, "pushes": n, "topples": k}.
 """
 from __future__ import annotations
@@ -101,10 +100,13 @@ def main() -> int:
     from physdyn_ros.learn.checkpoint import load_model
     from physdyn_ros.learn.evaluate import calibration, ground_truth, model_rollouts
     from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros import topple_fusion
     from physdyn_ros.resources import DEFAULT_MODEL
+    from physdyn_ros.topple_fusion_fit import push_verdicts
 
     torch.set_num_threads(1)
-    model, _ = load_model(args.checkpoint or DEFAULT_MODEL)
+    ckpt = args.checkpoint or DEFAULT_MODEL
+    model, _ = load_model(ckpt)
     sims = load_sims(args.data, ["test"])
     index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
     horizon = 60
@@ -120,27 +122,30 @@ def main() -> int:
         mu = sims.friction[index] * (1.0 + sign * args.friction_error)
         hull[name] = pybullet_resimulate(pts, sims.scale[index], *state0, mu, horizon,
                                          sims.manifest)["toppled"].max(axis=1).astype(np.float64)
-        hull["solid " + name] = pybullet_resimulate(pts, sims.scale[index], *state0, mu, horizon, sims.manifest,
-                                                    solid=True)["toppled"].max(axis=1).astype(np.float64)
     hull_mean = 0.5 * (hull["minus"] + hull["plus"])
-    solid_mean = 0.5 * (hull["solid minus"] + hull["solid plus"])
     pct = int(round(100 * args.friction_error))
     methods = {"model": p_model, f"pybullet hull mu -{pct}%": hull["minus"], f"pybullet hull mu +{pct}%": hull["plus"],
                "mean of model and both hulls": (p_model + hull["minus"] + hull["plus"]) / 3.0,
-               "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean,
-               f"pybullet solid mu -{pct}%": hull["solid minus"], f"pybullet solid mu +{pct}%": hull["solid plus"],
-               "0.6 model + 0.4 solids' mean": 0.6 * p_model + 0.4 * solid_mean}
+               "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean}
+    fusion_path = topple_fusion.fusion_path(ckpt)
+    if not args.partial:  # the solid needs the whole cloud
+        solid = push_verdicts(sims, index, args.friction_error)  # nominal, lower, higher friction
+        methods.update({f"pybullet solid mu -{pct}%": solid[:, 1], f"pybullet solid mu +{pct}%": solid[:, 2]})
+        if fusion_path.is_file():
+            weights = topple_fusion.FusionWeights.load(fusion_path)
+            methods["fusion (model + solid physics)"] = weights.fuse(p_model, solid)
     if args.exact_runs > 0:
         methods[f"true shape, {args.exact_runs} runs (ceiling)"] = exact_topples(sims, index, args.exact_runs, horizon)
     result: dict = {name: scores(p, truth) for name, p in methods.items()}
-    for name in ("model", "0.6 model + 0.4 hulls' mean"):  # reliability: is a predicted 0.3 a topple in 3 of 10?
+    shown = [m for m in ("model", "fusion (model + solid physics)") if m in methods]
+    for name in shown:  # reliability: is a predicted 0.3 a topple in 3 of 10?
         result[name]["reliability"] = calibration(methods[name], truth, bins=5)["reliability"]
     view = "one camera's view (model only)" if args.partial else "whole clouds"
     print(f"{args.data}: {len(index)} pushes, {int(truth.sum())} topples, {view}")
     print(f"{'method':<32} {'F1 (P / R)':>20} {'Brier':>7}")
     for name, r in result.items():
         print(f"{name:<32} {r['f1']:>8.3f} ({r['precision']:.2f} / {r['recall']:.2f}) {r['brier']:>7.4f}")
-    for name in ("model", "0.6 model + 0.4 hulls' mean"):
+    for name in shown:
         print(f"reliability of {name}: " + ", ".join(
             f"{r['bin']}: {r['n']} pushes, predicted {r['predicted']:.2f}, observed {r['observed']:.2f}"
             for r in result[name]["reliability"] if r["n"]))

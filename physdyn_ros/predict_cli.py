@@ -36,12 +36,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="start orientation quaternion (default: identity)")
     parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--topple-fusion", action="store_true",
+                        help="fuse the topple probability with pybullet on the solid the (whole) cloud encloses")
+    parser.add_argument("--friction", type=float, default=0.5, help="nominal friction of --topple-fusion's physics")
     parser.add_argument("--json", action="store_true", help="print the whole trajectory as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
     """Roll out the model for the cloud and velocities of `args`; print the final state (or JSON)."""
-    pred = Predictor.load(args.model, device=args.device, threads=1)
+    pred = Predictor.load(args.model, device=args.device, threads=1, topple_fusion=args.topple_fusion,
+                          friction=args.friction)
     cloud = load_cloud(args.cloud)
     traj = pred.rollout(cloud, args.lin_vel, args.ang_vel, args.horizon, args.position, args.orientation)
     if args.json:
@@ -60,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"final orientation [{q[0]:.4f}, {q[1]:.4f}, {q[2]:.4f}, {q[3]:.4f}] (x y z w); yaw {yaw:.1f} deg, "
           f"tilt {tilt:.1f} deg")
     print(f"final velocity    [{traj.lin_vels[-1][0]:.4f}, {traj.lin_vels[-1][1]:.4f}, {traj.lin_vels[-1][2]:.4f}] m/s")
-    print(f"topple probability {traj.topple_probability:.3f}")
+    fused = " (fused with physics on the cloud's solid)" if pred.topple_fusion is not None else ""
+    print(f"topple probability {traj.topple_probability:.3f}{fused}")
     if not math.isnan(traj.novelty):
         note = "  (beyond 99.5 % of the training inputs: unlike what the model was fitted on)" if traj.novelty > 1 \
             else ""

@@ -34,7 +34,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Optional, Sequence, Union
+from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -59,6 +59,9 @@ class ShapeCode:
     half_extents: np.ndarray  # (3,) m, half sizes of the cloud's bounding box in frame C
     num_points: int  # points in the encoded cloud
     model_id: str = ""  # the model that made it (features of different models are not interchangeable)
+    # (N, 3) m, the encoded cloud in the table frame (None for a code rebuilt from a shape feature message): the
+    # topple fusion's physics simulates it (Predictor.topple_fusion)
+    points: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -226,6 +229,9 @@ class Predictor:
         self.max_horizon: int = int(model.cfg.max_horizon)
         # a fixed subsample per cloud size: predictions depend only on the cloud, never on call order
         self._subsets: dict[tuple[int, int], np.ndarray] = {}
+        # whole-push topple probabilities of `rollout` fused with physics on the whole cloud's solid (None: the
+        # model's own); see load(topple_fusion=...) and physdyn_ros.topple_fusion
+        self.topple_fusion: Optional[Any] = None
 
     def batch_precision(self, rows: int) -> str:
         """"fp32" or "bf16": the precision of a roll-out of `rows` trajectories (1: always the float32 kernel)."""
@@ -243,7 +249,8 @@ class Predictor:
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike, None] = None, device: str = "cpu",
-             threads: Optional[int] = None, precision: str = "auto") -> "Predictor":
+             threads: Optional[int] = None, precision: str = "auto", topple_fusion: bool = False,
+             friction: float = 0.5) -> "Predictor":
         """Load a checkpoint (None: the shipped default model) and warm it up.
 
         FileNotFoundError if the file does not exist; learn.checkpoint.CheckpointError (a RuntimeError) if it
@@ -254,6 +261,12 @@ class Predictor:
         "auto" keeps batches under kernels.AUTO_BF16_ROWS in fp32 (bf16 is no faster there). The model card
         states bf16's accuracy cost; batch_precision(rows) says which a batch runs in. Batch 1 runs the C kernel
         where it is built (learn/native.py; PHYSDYN_BATCH1_KERNEL=numpy forces the numpy kernel).
+
+        `topple_fusion`: `rollout` of a cloud (or of a code encoded from one) fuses the model's whole-push topple
+        probability with pybullet on the solid the cloud encloses, at `friction` and 20 % less and more
+        (physdyn_ros.topple_fusion, weights stored beside the checkpoint: FileNotFoundError without them). Only
+        for whole clouds (every side of the object sampled); the solid and three short simulations add 20-50 ms to
+        each call. Batched roll-outs stay the model's.
         """
         import torch
 
@@ -275,6 +288,12 @@ class Predictor:
         model, ckpt = load_model(path, map_location=device)
         model.to(device).eval()
         pred = cls(model, ckpt, device, str(path), precision)
+        if topple_fusion:
+            from .topple_fusion import ToppleFusion
+
+            if pred._topple is None:
+                raise ValueError(f"{path} has no whole-push topple head to fuse with physics")
+            pred.topple_fusion = ToppleFusion.for_checkpoint(path, pred.model_id, friction)
         pred._warm_up()
         return pred
 
@@ -338,7 +357,7 @@ class Predictor:
             codes.append(ShapeCode(feature=feature, heading=float(c.heading),
                                    centroid=c.centroid + c_to_world(offset, float(c.heading)),
                                    half_extents=0.5 * (loc.max(axis=0) - loc.min(axis=0)), num_points=int(len(p)),
-                                   model_id=self.model_id))
+                                   model_id=self.model_id, points=p))
         return codes
 
     def _check_code(self, code: ShapeCode) -> None:
@@ -378,7 +397,8 @@ class Predictor:
             observed: optional states of frames 1..K (an Observed, or a mapping of its fields), kept as given.
 
         Returns:
-            A Trajectory of horizon + 1 states (frame 0 the given start) with topple probabilities and novelty.
+            A Trajectory of horizon + 1 states (frame 0 the given start) with topple probabilities and novelty;
+            with topple_fusion set and the code's points known, its whole-push topple probability is the fused one.
         """
         code = self._code(shape)
         horizon = self._check_horizon(horizon)
@@ -387,8 +407,14 @@ class Predictor:
         p0 = code.centroid if position is None else _vector(position, 3, "position")
         q0 = np.array([0.0, 0.0, 0.0, 1.0]) if orientation is None else _quaternions(orientation, "orientation")[0]
         obs = self._check_observed(observed, horizon)
+        fuse = None
+        if self.topple_fusion is not None and code.points is not None:
+            # the cloud moved rigidly from where it was seen (its code's centroid, identity) to the start pose
+            cloud = Rotation.from_quat(q0).apply(code.points - code.centroid) + p0
+            toppled = self.topple_fusion.physics.toppled(cloud, p0, v0, w0)
+            fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
         batch = self._run(code.feature[None], np.array([code.heading]), v0[None], w0[None], p0[None], q0[None],
-                          horizon, obs)
+                          horizon, obs, fuse=fuse)
         return batch[0]
 
     def rollout_batch(self, shapes: Union[ShapeCode, np.ndarray, Sequence[Union[ShapeCode, np.ndarray]]],
@@ -466,7 +492,7 @@ class Predictor:
 
     def _run(self, feats: np.ndarray, headings: np.ndarray, v0: np.ndarray, w0: np.ndarray, p0: np.ndarray,
              q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]],
-             head_timing: bool = True) -> TrajectoryBatch:
+             head_timing: bool = True, fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> TrajectoryBatch:
         """Roll out in frame C, then back to the table frame (all vectorised over the batch, numpy only: at batch 1
         the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead)."""
         wanted = horizon
@@ -502,7 +528,7 @@ class Predictor:
         if self._topple is not None:
             head, novelty = self._topple.assess(feats[:, :self._dynamics_dim], feats[:, self._dynamics_dim:],
                                                 vw[:, 0], vw[:, 1])
-            prob = topple_with_head(prob, head, d_rot, ang, k, lambda rows, d: compose_rotations(q0[rows], d))
+            prob = topple_with_head(prob, head, d_rot, ang, k, lambda rows, d: compose_rotations(q0[rows], d), fuse)
         settle(d_pos, d_rot, lin, ang, first=k + 1, dt=self.dt)
         p0 = np.asarray(p0, dtype=np.float64)[:, None]
         positions = np.concatenate([p0, p0 + np.cumsum(d_pos, axis=1)], axis=1)

@@ -20,7 +20,7 @@ reach zero, and a topple probability can disagree with the predicted poses).
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -46,12 +46,16 @@ def consistent_topple(prob: np.ndarray, orientations: np.ndarray) -> np.ndarray:
     return np.maximum.accumulate(np.where(tilted_past(orientations), 1.0, prob), axis=1)
 
 
-def whole_push_topple(step_prob: np.ndarray, head: np.ndarray, tilted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def whole_push_topple(step_prob: np.ndarray, head: np.ndarray, tilted: np.ndarray,
+                      fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-step probabilities (B, H+1) whose maximum is the whole-push probability of the topple head (B,), or 1
     where the roll-out's own poses tilt past TOPPLE_ANGLE (tilted (B, H+1)); the steps keep the per-step
-    network's timing (its running maximum, scaled to reach that probability); frame 0 stays 0. Returns
-    (per step, whole)."""
+    network's timing (its running maximum, scaled to reach that probability); frame 0 stays 0. `fuse` maps
+    that whole-push probability to another (the predictor's topple fusion with physics). Returns (per step,
+    whole)."""
     whole = np.maximum(np.asarray(head, dtype=np.float64), tilted.any(axis=1))
+    if fuse is not None:
+        whole = np.asarray(fuse(whole), dtype=np.float64)
     running = np.maximum.accumulate(np.maximum(step_prob[:, 1:], 1e-12), axis=1)
     timing = running / running[:, -1:]
     per_step = np.zeros(step_prob.shape)
@@ -104,17 +108,19 @@ def flat_unless_toppling(d_rot: np.ndarray, ang: np.ndarray, prob: np.ndarray,
 
 
 def topple_with_head(prob: np.ndarray, head: np.ndarray, d_rot: np.ndarray, ang: np.ndarray, first: int,
-                     orientations: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+                     orientations: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                     fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> np.ndarray:
     """The whole-push topple head's verdict on a roll-out, in place on d_rot / ang (after flat_unless_toppling
     with the per-step probabilities `prob`): per-step probabilities with the head's maximum (whole_push_topple,
     a pose tilted past TOPPLE_ANGLE counting as toppled), and no tilt where that maximum is at most 0.5 (the
     head's "no" also removes a tilt the per-step network allowed). Steps before `first` are observed and kept;
     orientations(rows, d_rot[rows]) integrates the given rows' rotation increments to (len(rows), H+1, 4) poses
-    (called for the rows that tilt only). Returns the per-step probabilities (B, H+1)."""
+    (called for the rows that tilt only); `fuse` as whole_push_topple's. Returns the per-step probabilities
+    (B, H+1)."""
     tilted = np.zeros(prob.shape, dtype=bool)
     free = np.flatnonzero(np.any(d_rot[..., :2] != 0.0, axis=(1, 2)))  # rows the step network let tilt
     if len(free):
         tilted[free] = tilted_past(orientations(free, d_rot[free]))
-    per_step, whole = whole_push_topple(prob, head, tilted)
+    per_step, whole = whole_push_topple(prob, head, tilted, fuse)
     flat_unless_toppling(d_rot[:, first:], ang[:, first:], whole[:, None])
     return per_step

@@ -94,6 +94,11 @@ class PredictorNode(ManagedNode):
                 "has bf16 arithmetic (read on configure)", choices=("auto", "fp32", "bf16"))
         declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription; read on "
                 "configure)", low=1, high=256)
+        declare(self, "topple_fusion", False, "predict_trajectory requests with a whole cloud fuse the model's "
+                "topple probability with pybullet on the cloud's solid (3 runs, 20-50 ms more; needs the "
+                "checkpoint's .topple_fusion.json; read on configure)")
+        declare(self, "topple_fusion_friction", 0.5, "nominal Coulomb friction of the topple fusion's physics (read "
+                "on configure)", low=0.01, high=10.0)
         self.table_frame: str = declare(self, "table_frame", TABLE_FRAME, "fixed frame of every input and "
                                         "output; inputs in another frame are rejected (no tf lookup)",
                                         read_only=True)
@@ -175,7 +180,8 @@ class PredictorNode(ManagedNode):
     # -------------------------------------------------------------------------------------------- lifecycle
     def configure(self) -> None:
         p = self._param
-        predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")), p("precision"))
+        predictor = load_predictor(self, p("model_path"), p("device"), int(p("num_threads")), p("precision"),
+                                   bool(p("topple_fusion")), float(p("topple_fusion_friction")))
         if int(p("horizon")) > int(predictor.max_horizon):
             raise ValueError(f"parameter horizon {p('horizon')} exceeds the max_horizon {predictor.max_horizon} of "
                              f"model {predictor.model_id}")

@@ -46,10 +46,10 @@ def check_device(device: str) -> None:
 
 
 def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
-                   precision: str = "auto") -> "Predictor":
+                   precision: str = "auto", topple_fusion: bool = False, friction: float = 0.5) -> "Predictor":
     """Predictor.load(model_path or the shipped default) with torch.set_num_threads(num_threads), the precision of
-    its batched roll-outs (auto, fp32, bf16) and its warm-up roll-outs done before the first request. Raises
-    ModelLoadError with the reason."""
+    its batched roll-outs (auto, fp32, bf16), the topple fusion with physics at `friction` when asked, and its
+    warm-up roll-outs done before the first request. Raises ModelLoadError with the reason."""
     from ..learn import native
     from ..predictor import Predictor
 
@@ -59,12 +59,12 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
     try:
         # Explicit threads: torch would otherwise start one per core in every node and oversubscribe the machine.
         predictor = Predictor.load(model_path or None, device=device, threads=max(1, int(num_threads)),
-                                   precision=precision)
+                                   precision=precision, topple_fusion=topple_fusion, friction=friction)
         batch1 = "the C kernel" if native.use_c() else "numpy"  # ValueError for a wrong PHYSDYN_BATCH1_KERNEL
     except Exception as exc:  # noqa: BLE001 - missing, corrupt or incompatible: the node refuses to start
         raise ModelLoadError(f"cannot load model from {where}: {exc}") from exc
     node.get_logger().info(f"model {predictor.model_id} loaded from {predictor.path} on {device} "
                            f"({num_threads} torch threads, large batches in {predictor.batch_precision(1 << 20)}, "
-                           f"batch 1 in {batch1}) "
+                           f"batch 1 in {batch1}{', topples fused with physics' if topple_fusion else ''}) "
                            f"in {time.monotonic() - t0:.2f} s")
     return predictor

@@ -1,0 +1,219 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""One whole-push topple probability from the learned model and physics on the whole cloud's solid.
+
+Why: on shapes unlike the training set's, the learned head misses topples that physics catches, and physics on
+the cloud's convex hull over-calls them (it weighs the space between a table's legs; shapes.solid). The hull
+weighing as the solid the cloud encloses (shapes.solid.solid_hull) gets the mass distribution nearly right, but
+not the friction; so pybullet runs that body three times, at the nominal friction and at friction_error less and
+more, and a logistic regression combines what it saw with the model:
+
+    p = sigmoid(a logit(p_model) + b0 t(mu) + b1 t(mu (1 - e)) + b2 t(mu (1 + e)) + c)
+
+t = 1 where the run tipped the body past the topple angle. The weights are fitted on pushes of new shapes of the
+training families (`physdyn fit-topple-fusion`) and stored beside the checkpoint they were fitted for
+(`<checkpoint>.topple_fusion.json`, with its model id). They hold for that model and the 4 s whole-push topple.
+
+The solid needs every side of the object (a scan, several cameras, the sim's whole clouds): one camera's view
+encloses nothing (shapes.solid). The solid and the three runs cost 20-50 ms a push: the fusion is for single
+predictions, not a planner's thousands of candidates (the planner re-simulates its finalists instead:
+planning.physics_check).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import numpy as np
+
+__all__ = ["FusionWeights", "SolidPhysics", "ToppleFusion", "fusion_path", "fit_weights", "FUSION_FRAMES"]
+
+#: Frames (1/15 s) each physics run records: the whole push the weights were fitted for (4 s).
+FUSION_FRAMES = 60
+#: Probabilities are clipped to [EPS, 1 - EPS] before the logit (the model's 0 and 1 stay finite).
+EPS = 1e-4
+
+
+def fusion_path(checkpoint: Union[str, os.PathLike]) -> Path:
+    """Where the fusion weights of a checkpoint live: beside it, `<name>.topple_fusion.json`."""
+    path = Path(checkpoint)
+    return path.with_name(path.stem + ".topple_fusion.json")
+
+
+def logit(p: np.ndarray) -> np.ndarray:
+    q = np.clip(np.asarray(p, dtype=np.float64), EPS, 1.0 - EPS)
+    return np.log(q / (1.0 - q))
+
+
+@dataclass(frozen=True)
+class FusionWeights:
+    """The logistic regression's coefficients and what they were fitted for."""
+
+    model_id: str  # the checkpoint's model id: the weights belong to its topple head
+    model: float  # on logit(p_model)
+    nominal: float  # on the physics run at the nominal friction toppling (0 or 1)
+    lower: float  # at friction (1 - friction_error)
+    higher: float  # at friction (1 + friction_error)
+    bias: float
+    friction_error: float = 0.2
+    fitted_on: str = ""  # the dataset(s), for the model card
+    pushes: int = 0  # pushes fitted on
+
+    def fuse(self, p_model: Any, toppled: Any) -> np.ndarray:
+        """Fused probabilities (B,) of the model's whole-push probabilities (B,) and the runs' verdicts (B, 3)
+        in the order nominal, lower, higher friction."""
+        t = np.asarray(toppled, dtype=np.float64).reshape(-1, 3)
+        z = self.model * logit(p_model) + t @ np.array([self.nominal, self.lower, self.higher]) + self.bias
+        return 1.0 / (1.0 + np.exp(-z))
+
+    def save(self, path: Union[str, os.PathLike]) -> None:
+        """Write as JSON, atomically (a temporary file in the same folder, then a rename)."""
+        path = Path(path)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w") as f:
+                json.dump(asdict(self), f, indent=1)
+                f.write("\n")
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path: Union[str, os.PathLike]) -> "FusionWeights":
+        """Read a file written by save; ValueError naming the file and the problem."""
+        try:
+            raw = json.loads(Path(path).read_text())
+            weights = cls(**raw)
+        except FileNotFoundError:
+            raise
+        except (OSError, ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: not topple fusion weights ({exc})") from None
+        numbers = (weights.model, weights.nominal, weights.lower, weights.higher, weights.bias)
+        if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in numbers):
+            raise ValueError(f"{path}: the weights must be finite numbers, got {numbers}")
+        if not 0.0 <= weights.friction_error < 1.0:
+            raise ValueError(f"{path}: friction_error must be in [0, 1), got {weights.friction_error}")
+        return weights
+
+
+def fit_weights(p_model: np.ndarray, toppled: np.ndarray, truth: np.ndarray,
+                l2: float = 1e-3) -> tuple[np.ndarray, float]:
+    """Logistic regression of truth (B,) on [logit(p_model), toppled (B, 3)]: (4 coefficients, bias). `l2` keeps
+    the coefficients finite when a column separates the pushes perfectly."""
+    from scipy.optimize import minimize
+
+    x = np.column_stack([logit(p_model), np.asarray(toppled, dtype=np.float64).reshape(-1, 3),
+                         np.ones(len(p_model))])
+    y = np.asarray(truth, dtype=np.float64) > 0.5
+    if len(np.unique(y)) < 2:
+        raise ValueError(f"fitting needs pushes that topple and pushes that do not ({int(y.sum())} of {len(y)} "
+                         "toppled)")
+
+    def loss(w: np.ndarray) -> tuple[float, np.ndarray]:
+        z = x @ w
+        p = 1.0 / (1.0 + np.exp(-z))
+        value = float(np.mean(np.logaddexp(0.0, z) - y * z) + l2 * np.sum(w[:-1] ** 2))
+        grad = x.T @ (p - y) / len(y)
+        grad[:-1] += 2.0 * l2 * w[:-1]
+        return value, grad
+
+    w = minimize(loss, np.zeros(x.shape[1]), jac=True, method="L-BFGS-B").x
+    return w[:-1], float(w[-1])
+
+
+class SolidPhysics:
+    """pybullet runs of a whole cloud's solid hull (pybullet is imported on creation, one DIRECT client)."""
+
+    def __init__(self, friction: float = 0.5, friction_error: float = 0.2, config: Any = None) -> None:
+        from .sim import SimConfig, Simulator
+
+        if not 0.0 < friction <= 10.0:
+            raise ValueError(f"friction must be in (0, 10], got {friction}")
+        if not 0.0 <= friction_error < 1.0:
+            raise ValueError(f"friction_error must be in [0, 1), got {friction_error}")
+        self.frictions = (float(friction), friction * (1.0 - friction_error), friction * (1.0 + friction_error))
+        # hull collisions are exact for a lone object on a plane
+        self.config = config if config is not None else SimConfig(collision="hull")
+        self._sim: Optional[Any] = Simulator(self.config)
+
+    def close(self) -> None:
+        if self._sim is not None:
+            self._sim.close()
+            self._sim = None
+
+    def __enter__(self) -> "SolidPhysics":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def toppled(self, points: np.ndarray, reference: np.ndarray, lin_vel: np.ndarray, ang_vel: np.ndarray,
+                frames: int = FUSION_FRAMES, friction: Optional[float] = None) -> np.ndarray:
+        """(3,) 1.0 where a run at the nominal, lower and higher friction toppled. `points` (N, 3): the whole
+        cloud at the pose the push starts from, table frame; `reference` (3,): the point lin_vel refers to (the
+        predictor's centre of mass); the body moves rigidly with lin_vel, ang_vel (m/s, rad/s). `friction`: this
+        push's nominal coefficient instead of the one given on creation (a dataset's pushes carry their own)."""
+        from .shapes.solid import solid_hull
+        from .sim import simulate_from_state
+
+        if self._sim is None:
+            raise RuntimeError("SolidPhysics is closed")
+        shape, com = solid_hull(points)
+        w = np.asarray(ang_vel, dtype=np.float64)
+        v = np.asarray(lin_vel, dtype=np.float64) + np.cross(w, com - np.asarray(reference, dtype=np.float64))
+        frictions = self.frictions if friction is None else \
+            tuple(float(friction) * f / self.frictions[0] for f in self.frictions)
+        out = np.zeros(3)
+        for i, mu in enumerate(frictions):
+            rec = simulate_from_state(shape, (1.0, 1.0, 1.0), com, (0.0, 0.0, 0.0, 1.0), v, w, friction=mu,
+                                      num_frames=int(frames) + 1, config=self.config, sim=self._sim)
+            out[i] = float(np.max(rec["toppled"]))
+        return out
+
+
+class ToppleFusion:
+    """Fused whole-push topple probabilities of one checkpoint's model (FusionWeights + SolidPhysics)."""
+
+    def __init__(self, weights: FusionWeights, friction: float = 0.5) -> None:
+        self.weights = weights
+        self.physics = SolidPhysics(friction, weights.friction_error)
+
+    @classmethod
+    def for_checkpoint(cls, checkpoint: Union[str, os.PathLike], model_id: str,
+                       friction: float = 0.5) -> "ToppleFusion":
+        """The fusion stored beside `checkpoint`; FileNotFoundError if there is none, ValueError if it was fitted
+        for another model."""
+        path = fusion_path(checkpoint)
+        if not path.is_file():
+            raise FileNotFoundError(f"no topple fusion weights for {checkpoint} (expected {path}; fit them with "
+                                    "'physdyn fit-topple-fusion')")
+        weights = FusionWeights.load(path)
+        if weights.model_id != model_id:
+            raise ValueError(f"{path} was fitted for model {weights.model_id}, not {model_id}")
+        return cls(weights, friction)
+
+    def close(self) -> None:
+        self.physics.close()
+
+    def probability(self, p_model: float, points: np.ndarray, reference: np.ndarray, lin_vel: np.ndarray,
+                    ang_vel: np.ndarray) -> float:
+        """The fused probability of one push (SolidPhysics.toppled's arguments)."""
+        toppled = self.physics.toppled(points, reference, lin_vel, ang_vel)
+        return float(self.weights.fuse(np.array([p_model]), toppled[None])[0])

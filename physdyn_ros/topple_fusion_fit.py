@@ -1,0 +1,113 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""`physdyn fit-topple-fusion`: fit a checkpoint's topple fusion (physdyn_ros.topple_fusion) on a dataset.
+
+    physdyn fit-topple-fusion --data data/fit_families [--checkpoint CKPT] [--splits test] [--max-sequences 1500]
+        [--out PATH]
+
+For each push (evenly spaced over the splits): the model's whole-push topple probability from the true initial
+state and the whole cloud (what `physdyn evaluate` scores), and the solid hull's three pybullet runs; then the
+logistic regression on whether the push toppled. Fit on shapes the fusion is not measured on (the model card's
+run: new shapes of the trained families; bench/topple_mix.py measures it on held-out families). Writes the
+weights beside the checkpoint (`<checkpoint>.topple_fusion.json`, atomically) unless --out says otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .topple_fusion import FUSION_FRAMES, FusionWeights, SolidPhysics, fit_weights, fusion_path
+
+__all__ = ["push_verdicts", "add_arguments", "run"]
+
+
+def push_verdicts(sims: Any, index: np.ndarray, friction_error: float = 0.2) -> np.ndarray:
+    """(B, 3) the solid hull's pybullet verdicts (SolidPhysics.toppled) on a dataset's pushes `index`: the whole
+    canonical cloud at its start pose, the true initial velocities about the true centre of mass, the push's
+    friction as the nominal."""
+    from .geometry import quat_rotate
+
+    out = np.zeros((len(index), 3))
+    with SolidPhysics(0.5, friction_error) as physics:
+        for j, i in enumerate(index):
+            pts = sims.points[sims.shape_index[i]].astype(np.float64) * sims.scale[i].astype(np.float64)
+            q = np.broadcast_to(sims.quat[i, 0].astype(np.float64), pts.shape[:1] + (4,))
+            pos = sims.pos[i, 0].astype(np.float64)
+            out[j] = physics.toppled(quat_rotate(q, pts) + pos, pos, sims.lin_vel[i, 0], sims.ang_vel[i, 0],
+                                     friction=float(sims.friction[i]))
+    return out
+
+
+def model_and_truth(model: Any, sims: Any, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The model's whole-push probabilities (B,) over FUSION_FRAMES from the true initial states and whole
+    clouds, and whether each push toppled (B,)."""
+    import torch
+
+    from .learn.evaluate import ground_truth, model_rollouts
+
+    with torch.inference_mode():
+        rolled = model_rollouts(model, sims, index, FUSION_FRAMES).topple_prob
+    truth = ground_truth(sims, index, FUSION_FRAMES).topple_prob
+    assert rolled is not None and truth is not None  # a model with a topple head, a dataset with labels
+    return rolled.max(axis=1), truth.max(axis=1)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", required=True, help="dataset to fit on (its test split)")
+    parser.add_argument("--checkpoint", default=None, help="default: the shipped model")
+    parser.add_argument("--splits", nargs="+", default=["test"],
+                        help="splits to fit on (all three for a dataset made for fitting)")
+    parser.add_argument("--max-sequences", type=int, default=1500)
+    parser.add_argument("--friction-error", type=float, default=0.2,
+                        help="the lower and higher runs' friction: the nominal x (1 -/+ this)")
+    parser.add_argument("--out", type=Path, default=None, help="default: beside the checkpoint")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from .learn.checkpoint import load_model
+    from .learn.windows import load_sims
+    from .resources import DEFAULT_MODEL
+
+    if args.max_sequences < 10:
+        raise ValueError(f"--max-sequences must be at least 10, got {args.max_sequences}")
+    torch.set_num_threads(1)
+    ckpt = Path(args.checkpoint) if args.checkpoint else DEFAULT_MODEL
+    model, meta = load_model(ckpt)
+    if model.topple is None:
+        raise ValueError(f"{ckpt} has no whole-push topple head: fit one first (physdyn fit-topple)")
+    sims = load_sims(args.data, list(args.splits))
+    index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
+    p_model, truth = model_and_truth(model, sims, index)
+    toppled = push_verdicts(sims, index, args.friction_error)
+    coef, bias = fit_weights(p_model, toppled, truth)
+    weights = FusionWeights(model_id=str(meta["model_id"]), model=float(coef[0]), nominal=float(coef[1]),
+                            lower=float(coef[2]), higher=float(coef[3]), bias=bias,
+                            friction_error=float(args.friction_error),
+                            fitted_on=f"{Path(args.data).name} ({', '.join(args.splits)})", pushes=len(index))
+    fused = weights.fuse(p_model, toppled)
+    for name, p in (("model", p_model), ("fusion (in-sample)", fused)):
+        pred, true = p >= 0.5, truth > 0.5
+        tp = int(np.sum(pred & true))
+        f1 = 2 * tp / max(int(pred.sum()) + int(true.sum()), 1)
+        print(f"{name:<20} F1 {f1:.3f}  Brier {float(np.mean((p - true) ** 2)):.4f}")
+    out = args.out or fusion_path(ckpt)
+    weights.save(out)
+    print(f"{len(index)} pushes ({int((truth > 0.5).sum())} toppled): weights {np.round(coef, 3).tolist()}, bias "
+          f"{bias:.3f} -> {out}")
+    return 0

@@ -1,0 +1,165 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The topple fusion: its weights file, its fit, its physics runs, and the Predictor fusing with them."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+
+from physdyn_ros.learn import rules
+from physdyn_ros.predictor import Predictor
+from physdyn_ros.resources import DEFAULT_MODEL
+from physdyn_ros.topple_fusion import FusionWeights, SolidPhysics, fit_weights, fusion_path, logit
+
+WEIGHTS = FusionWeights(model_id="m", model=0.7, nominal=1.4, lower=1.6, higher=0.6, bias=-2.8, fitted_on="x",
+                        pushes=10)
+
+
+def box_cloud(extents, n=2000) -> np.ndarray:
+    """A box's surface resting on the table plane z = 0, centred at x = y = 0."""
+    pts = np.asarray(trimesh.sample.sample_surface(trimesh.creation.box(extents=extents), n, seed=0)[0])
+    return pts - [0.0, 0.0, pts[:, 2].min()]
+
+
+def test_weights_round_trip_and_fuse(tmp_path):
+    path = tmp_path / "w.json"
+    WEIGHTS.save(path)
+    assert FusionWeights.load(path) == WEIGHTS
+    assert not list(tmp_path.glob("*.tmp"))  # the temporary file was renamed
+    p = WEIGHTS.fuse(np.array([0.5, 0.5, 0.9]), np.array([[0, 0, 0], [1, 1, 1], [0, 1, 0]]))
+    z = np.array([-2.8, -2.8 + 3.6, 0.7 * np.log(9.0) + 1.6 - 2.8])
+    np.testing.assert_allclose(p, 1.0 / (1.0 + np.exp(-z)))
+    assert fusion_path("/a/b/default.pt").as_posix() == "/a/b/default.topple_fusion.json"
+
+
+@pytest.mark.parametrize("content, match", [("{not json", "not topple fusion weights"),
+                                            ('{"model_id": "m"}', "not topple fusion weights"),
+                                            (None, "must be finite")])
+def test_bad_weight_files_are_refused(tmp_path, content, match):
+    path = tmp_path / "w.json"
+    if content is None:
+        raw = json.loads(json.dumps(WEIGHTS.__dict__))
+        raw["bias"] = float("nan")
+        content = json.dumps(raw)
+    path.write_text(content)
+    with pytest.raises(ValueError, match=match):
+        FusionWeights.load(path)
+
+
+def test_fit_recovers_the_weights_that_made_the_data():
+    rng = np.random.default_rng(0)
+    n = 20000
+    p_model = 1.0 / (1.0 + np.exp(-rng.normal(-1.5, 2.0, n)))
+    toppled = (rng.random((n, 3)) < 0.3).astype(float)
+    truth = rng.random(n) < WEIGHTS.fuse(p_model, toppled)
+    coef, bias = fit_weights(p_model, toppled, truth, l2=0.0)
+    np.testing.assert_allclose(coef, [0.7, 1.4, 1.6, 0.6], atol=0.12)
+    assert bias == pytest.approx(-2.8, abs=0.12)
+    with pytest.raises(ValueError, match="topple and pushes that do not"):
+        fit_weights(p_model, toppled, np.zeros(n))
+
+
+def test_fused_per_step_probabilities_keep_the_timing():
+    step = np.array([[0.0, 0.1, 0.2, 0.4], [0.0, 0.3, 0.3, 0.3]])
+    per_step, whole = rules.whole_push_topple(step, np.array([0.2, 0.6]), np.zeros(step.shape, bool),
+                                              fuse=lambda w: 1.0 - w)
+    np.testing.assert_allclose(whole, [0.8, 0.4])
+    np.testing.assert_allclose(per_step[0], [0.0, 0.2, 0.4, 0.8])
+    np.testing.assert_allclose(per_step[1], [0.0, 0.4, 0.4, 0.4])
+
+
+def test_solid_physics_tips_a_tall_box_and_slides_a_flat_one():
+    with SolidPhysics(0.5) as physics:
+        tall = box_cloud((0.04, 0.04, 0.24))
+        ref = np.array([0.0, 0.0, 0.12])
+        assert physics.toppled(tall, ref, (0.3, 0.0, 0.0), (0.0, 6.0, 0.0)).tolist() == [1.0, 1.0, 1.0]
+        assert physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).tolist() == [0.0, 0.0, 0.0]
+        flat = box_cloud((0.2, 0.15, 0.03))
+        assert physics.toppled(flat, (0.0, 0.0, 0.015), (0.8, 0.0, 0.0), (0.0, 0.0, 2.0)).tolist() == [0, 0, 0]
+        # the same rigid motion described about another point: the velocity there is v + w x r
+        w = np.array([0.0, 6.0, 0.0])
+        top = ref + [0.0, 0.0, 0.12]
+        assert physics.toppled(tall, top, np.cross(w, top - ref) + [0.3, 0.0, 0.0], w).tolist() == [1.0, 1.0, 1.0]
+    with pytest.raises(RuntimeError, match="closed"):
+        physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="friction_error"):
+        SolidPhysics(0.5, 1.5)
+
+
+@pytest.fixture(scope="module")
+def fused(tmp_path_factory):
+    """The shipped model beside weights that ignore it (model 0) and follow the nominal physics run."""
+    folder = tmp_path_factory.mktemp("fusion")
+    ckpt = folder / "default.pt"
+    ckpt.symlink_to(DEFAULT_MODEL)
+    plain = Predictor.load(ckpt)
+    replace(WEIGHTS, model_id=plain.model_id, model=0.0, nominal=8.0, lower=0.0, higher=0.0,
+            bias=-4.0).save(fusion_path(ckpt))
+    return plain, Predictor.load(ckpt, topple_fusion=True)
+
+
+def test_predictor_fuses_rollouts_of_clouds(fused):
+    plain, pred = fused
+    tall = box_cloud((0.04, 0.04, 0.24)) + [0.3, 0.1, 0.0]
+    code = pred.encode(tall)
+    tip, rest = ((0.3, 0.0, 0.0), (0.0, 6.0, 0.0)), ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    # above 0.5 the roll-out keeps its tilt, and a pose tilted past the topple angle counts as toppled (1)
+    assert pred.rollout(code, *tip).topple_probability >= 1.0 / (1.0 + np.exp(-4.0)) - 1e-12
+    assert pred.rollout(tall, *rest).topple_probability == pytest.approx(1.0 / (1.0 + np.exp(4.0)))
+    # the motion is the model's either way; a code without points (a shape feature message's) is not fused, nor
+    # are batched roll-outs
+    a, b = pred.rollout(code, *tip), plain.rollout(code, *tip)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    bare = replace(code, points=None)
+    assert pred.rollout(bare, *tip).topple_probability == plain.rollout(bare, *tip).topple_probability
+    np.testing.assert_array_equal(pred.rollout_batch(code, *tip).topple_prob,
+                                  plain.rollout_batch(code, *tip).topple_prob)
+
+
+def test_predictor_refuses_missing_or_foreign_weights(tmp_path):
+    ckpt = tmp_path / "default.pt"
+    ckpt.symlink_to(DEFAULT_MODEL)
+    with pytest.raises(FileNotFoundError, match="fit-topple-fusion"):
+        Predictor.load(ckpt, topple_fusion=True)
+    WEIGHTS.save(fusion_path(ckpt))
+    with pytest.raises(ValueError, match="fitted for model m"):
+        Predictor.load(ckpt, topple_fusion=True)
+
+
+def test_logit_is_finite_at_the_ends():
+    assert np.all(np.isfinite(logit(np.array([0.0, 1.0]))))
+
+
+def test_fit_command_writes_weights_the_predictor_loads(tmp_path, capsys):
+    """`physdyn fit-topple-fusion` on a small real dataset: weights beside a checkpoint, which then loads fused;
+    a checkpoint without a topple head is refused with one line."""
+    from learn_support import random_checkpoint, tiny_dataset
+
+    from physdyn_ros.cli import main
+
+    data = tiny_dataset()
+    ckpt = tmp_path / "default.pt"
+    ckpt.symlink_to(DEFAULT_MODEL)
+    assert main(["fit-topple-fusion", "--data", str(data), "--checkpoint", str(ckpt), "--splits", "train", "val",
+                 "test", "--max-sequences", "120"]) == 0
+    weights = FusionWeights.load(fusion_path(ckpt))
+    assert weights.pushes == 120 and weights.fitted_on == "data (train, val, test)"
+    assert Predictor.load(ckpt, topple_fusion=True).topple_fusion.weights == weights
+    tiny = random_checkpoint(tmp_path / "tiny.pt")
+    assert main(["fit-topple-fusion", "--data", str(data), "--checkpoint", str(tiny)]) == 2
+    assert "no whole-push topple head" in capsys.readouterr().err
