@@ -215,6 +215,9 @@ def main() -> int:
                     help="learned planner physics_check: re-simulate its finalists on the cloud's hull (default 1)")
     ap.add_argument("--whole-cloud", type=int, choices=(0, 1), default=1,
                     help="planner whole_cloud: 1 the physics check weighs the solid the cloud encloses, 0 its hull")
+    ap.add_argument("--physics-fusion", type=int, choices=(0, 1), default=1,
+                    help="planner physics_fusion: 1 the physics check's verdict is the model's topple fusion "
+                         "(whole clouds, a checkpoint with fusion weights), 0 the share of toppled runs")
     ap.add_argument("--skip-pybullet", action="store_true", help="no planner over the cloud's hull in pybullet")
     ap.add_argument("--skip-oracle", action="store_true", help="no planner over the true simulator (the ceiling)")
     ap.add_argument("--oracle-iterations", type=int, default=3,
@@ -237,6 +240,7 @@ def main() -> int:
     risk = {} if args.pessimistic is None else {"pessimistic": bool(args.pessimistic)}
     risk["physics_check"] = bool(args.physics_check)
     risk["whole_cloud"] = bool(args.whole_cloud)
+    risk["physics_fusion"] = bool(args.physics_fusion)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
                    args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk)]
     oracle = None
@@ -286,6 +290,7 @@ def main() -> int:
            "contact_surface_max_mm": round(learned["contact_max_mm"], 3),
            "groups": {g: {k: round(v, 3) for k, v in d.items()} for g, d in learned["groups"].items()},
            "pessimistic": bool(risk.get("pessimistic", False)), "whole_cloud": bool(risk["whole_cloud"]),
+           "physics_fusion": bool(risk["physics_fusion"]),
            "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
            "pybullet_success_1push": round(hull["first"], 3) if hull else None,
            "pybullet_success_3push": round(hull["final"], 3) if hull else None,

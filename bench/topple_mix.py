@@ -129,8 +129,9 @@ def main() -> int:
                "0.6 model + 0.4 hulls' mean": 0.6 * p_model + 0.4 * hull_mean}
     fusion_path = topple_fusion.fusion_path(ckpt)
     if not args.partial:  # the solid needs the whole cloud
-        solid = push_verdicts(sims, index, args.friction_error)  # nominal, lower, higher friction
-        methods.update({f"pybullet solid mu -{pct}%": solid[:, 1], f"pybullet solid mu +{pct}%": solid[:, 2]})
+        solid = push_verdicts(sims, index)  # topple_fusion.RUNS: as given, friction -20 % / +20 %, speed -/+10 %
+        lower, higher = (round(100 * abs(1.0 - f)) for f, _ in topple_fusion.RUNS[1:3])
+        methods.update({f"pybullet solid mu -{lower}%": solid[:, 1], f"pybullet solid mu +{higher}%": solid[:, 2]})
         if fusion_path.is_file():
             weights = topple_fusion.FusionWeights.load(fusion_path)
             methods["fusion (model + solid physics)"] = weights.fuse(p_model, solid)

@@ -17,7 +17,7 @@
         [--out PATH]
 
 For each push (evenly spaced over the splits): the model's whole-push topple probability from the true initial
-state and the whole cloud (what `physdyn evaluate` scores), and the solid hull's three pybullet runs; then the
+state and the whole cloud (what `physdyn evaluate` scores), and the solid hull's pybullet runs (RUNS); then the
 logistic regression on whether the push toppled. Fit on shapes the fusion is not measured on (the model card's
 run: new shapes of the trained families; bench/topple_mix.py measures it on held-out families). Writes the
 weights beside the checkpoint (`<checkpoint>.topple_fusion.json`, atomically) unless --out says otherwise.
@@ -30,19 +30,19 @@ from typing import Any
 
 import numpy as np
 
-from .topple_fusion import FUSION_FRAMES, FusionWeights, SolidPhysics, fit_weights, fusion_path
+from .topple_fusion import FUSION_FRAMES, RUNS, FusionWeights, SolidPhysics, fit_weights, fusion_path
 
 __all__ = ["push_verdicts", "add_arguments", "run"]
 
 
-def push_verdicts(sims: Any, index: np.ndarray, friction_error: float = 0.2) -> np.ndarray:
-    """(B, 3) the solid hull's pybullet verdicts (SolidPhysics.toppled) on a dataset's pushes `index`: the whole
+def push_verdicts(sims: Any, index: np.ndarray) -> np.ndarray:
+    """(B, R) the solid hull's pybullet verdicts (SolidPhysics.toppled) on a dataset's pushes `index`: the whole
     canonical cloud at its start pose, the true initial velocities about the true centre of mass, the push's
     friction as the nominal."""
     from .geometry import quat_rotate
 
-    out = np.zeros((len(index), 3))
-    with SolidPhysics(0.5, friction_error) as physics:
+    out = np.zeros((len(index), len(RUNS)))
+    with SolidPhysics(0.5, RUNS) as physics:
         for j, i in enumerate(index):
             pts = sims.points[sims.shape_index[i]].astype(np.float64) * sims.scale[i].astype(np.float64)
             q = np.broadcast_to(sims.quat[i, 0].astype(np.float64), pts.shape[:1] + (4,))
@@ -72,8 +72,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--splits", nargs="+", default=["test"],
                         help="splits to fit on (all three for a dataset made for fitting)")
     parser.add_argument("--max-sequences", type=int, default=1500)
-    parser.add_argument("--friction-error", type=float, default=0.2,
-                        help="the lower and higher runs' friction: the nominal x (1 -/+ this)")
     parser.add_argument("--out", type=Path, default=None, help="default: beside the checkpoint")
 
 
@@ -94,11 +92,10 @@ def run(args: argparse.Namespace) -> int:
     sims = load_sims(args.data, list(args.splits))
     index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
     p_model, truth = model_and_truth(model, sims, index)
-    toppled = push_verdicts(sims, index, args.friction_error)
+    toppled = push_verdicts(sims, index)
     coef, bias = fit_weights(p_model, toppled, truth)
-    weights = FusionWeights(model_id=str(meta["model_id"]), model=float(coef[0]), nominal=float(coef[1]),
-                            lower=float(coef[2]), higher=float(coef[3]), bias=bias,
-                            friction_error=float(args.friction_error),
+    weights = FusionWeights(model_id=str(meta["model_id"]), model=float(coef[0]),
+                            physics=tuple(float(c) for c in coef[1:]), bias=bias, runs=RUNS,
                             fitted_on=f"{Path(args.data).name} ({', '.join(args.splits)})", pushes=len(index))
     fused = weights.fuse(p_model, toppled)
     for name, p in (("model", p_model), ("fusion (in-sample)", fused)):

@@ -491,3 +491,39 @@ def test_the_physics_check_vetoes_pushes_the_model_finds_safe():
         assert "hull physics" in near.message
         ran = hull.rollout_batch(squat, near.lin_vel[None], near.ang_vel[None], horizon=30)
         assert ran.topple_prob.max() == 0.0
+
+
+def test_the_physics_check_fuses_with_the_models_topple_fusion(tmp_path):
+    """With fusion weights beside the model's checkpoint (for its model id) and a whole cloud, the physics check's
+    verdict is the fused probability over the solid's runs (topple_fusion.RUNS); a push that tips the solid in
+    most runs is vetoed whatever the model and the weights say. Without weights, for another model, with one
+    camera's view or physics_fusion off, the share of toppled hull runs vetoes as before."""
+    from physdyn_ros.topple_fusion import RUNS, FusionWeights, fusion_path
+
+    class Sliding(AnalyticSlidingModel):  # never predicts a topple; a checkpoint path for the weights
+        path = str(tmp_path / "model.pt")
+
+    model = Sliding(0.5)
+    # weights that trust the model alone (logit of its ~0 topple probability: the fusion says 0)
+    trusting = FusionWeights(model_id=model.model_id, model=1.0, physics=(0.0,) * len(RUNS), bias=0.0)
+    cfg = replace(FAST, tip_check=False, time_budget=1.0)
+    far = Goal(Pose2D(0.15, 0.0, 0.0), 0.02, math.pi)
+    tall, squat = box_cloud(half=(0.025, 0.025, 0.1), n=1500), box_cloud(half=(0.04, 0.04, 0.05), n=1500)
+    planner = PushPlanner(model, cfg)
+    assert planner.fusion_weights() is None  # no file yet
+    trusting.save(fusion_path(Sliding.path))
+    assert planner.fusion_weights() == trusting
+    with pytest.raises(PlanningError, match="re-simulated on the solid its cloud encloses"):
+        planner.plan(tall, Pose2D(0, 0, 0), far)  # the runs tip the tall box: vetoed despite the weights
+    plan = planner.plan(squat, Pose2D(0, 0, 0), far)
+    assert 0.0 <= plan.physics_topple_probability < 1e-3 and "fused with the solid's physics" in plan.message
+    for other in (replace(cfg, whole_cloud=False), replace(cfg, physics_fusion=False)):
+        with pytest.raises(PlanningError, match="re-simulated on its hull"):
+            planner.plan(tall, Pose2D(0, 0, 0), far, config=other)
+    # weights fitted for another model are not used
+    replace(trusting, model_id="another").save(fusion_path(Sliding.path))
+    assert planner.fusion_weights() is None
+    fusion_path(Sliding.path).write_text("{broken")
+    with pytest.raises(PlanningError, match="not topple fusion weights"):
+        planner.plan(squat, Pose2D(0, 0, 0), far)
+    planner.close()

@@ -24,10 +24,11 @@ import trimesh
 from physdyn_ros.learn import rules
 from physdyn_ros.predictor import Predictor
 from physdyn_ros.resources import DEFAULT_MODEL
-from physdyn_ros.topple_fusion import FusionWeights, SolidPhysics, fit_weights, fusion_path, logit
+from physdyn_ros.topple_fusion import RUNS, FusionWeights, SolidPhysics, fit_weights, fusion_path, logit
 
-WEIGHTS = FusionWeights(model_id="m", model=0.7, nominal=1.4, lower=1.6, higher=0.6, bias=-2.8, fitted_on="x",
+WEIGHTS = FusionWeights(model_id="m", model=0.7, physics=(1.4, 1.6, 0.6, 0.3, 0.5), bias=-2.8, fitted_on="x",
                         pushes=10)
+TIP = ((0.3, 0.0, 0.0), (0.0, 6.0, 0.0))  # a tall box's push about its lower edge: it tips whatever the run
 
 
 def box_cloud(extents, n=2000) -> np.ndarray:
@@ -41,21 +42,27 @@ def test_weights_round_trip_and_fuse(tmp_path):
     WEIGHTS.save(path)
     assert FusionWeights.load(path) == WEIGHTS
     assert not list(tmp_path.glob("*.tmp"))  # the temporary file was renamed
-    p = WEIGHTS.fuse(np.array([0.5, 0.5, 0.9]), np.array([[0, 0, 0], [1, 1, 1], [0, 1, 0]]))
-    z = np.array([-2.8, -2.8 + 3.6, 0.7 * np.log(9.0) + 1.6 - 2.8])
+    p = WEIGHTS.fuse(np.array([0.5, 0.5, 0.9]), np.array([[0, 0, 0, 0, 0], [1, 1, 1, 1, 1], [0, 1, 0, 0, 1]]))
+    z = np.array([-2.8, -2.8 + 4.4, 0.7 * np.log(9.0) + 1.6 + 0.5 - 2.8])
     np.testing.assert_allclose(p, 1.0 / (1.0 + np.exp(-z)))
     assert fusion_path("/a/b/default.pt").as_posix() == "/a/b/default.topple_fusion.json"
 
 
+def _edited(**changes) -> str:
+    raw = json.loads(json.dumps(WEIGHTS.__dict__))
+    raw.update(changes)
+    return json.dumps(raw)
+
+
 @pytest.mark.parametrize("content, match", [("{not json", "not topple fusion weights"),
                                             ('{"model_id": "m"}', "not topple fusion weights"),
-                                            (None, "must be finite")])
+                                            (_edited(bias=float("nan")), "must be finite"),
+                                            (_edited(physics=[1.0, 2.0]), "one weight per run"),
+                                            (_edited(runs=[[1.0, 1.0], [0.8, 1.0], [1.2], [1, 1], [1, 1]]),
+                                             "one weight per run"),
+                                            (_edited(runs=[[1.0, -1.0]] * 5), "one weight per run")])
 def test_bad_weight_files_are_refused(tmp_path, content, match):
     path = tmp_path / "w.json"
-    if content is None:
-        raw = json.loads(json.dumps(WEIGHTS.__dict__))
-        raw["bias"] = float("nan")
-        content = json.dumps(raw)
     path.write_text(content)
     with pytest.raises(ValueError, match=match):
         FusionWeights.load(path)
@@ -65,10 +72,10 @@ def test_fit_recovers_the_weights_that_made_the_data():
     rng = np.random.default_rng(0)
     n = 20000
     p_model = 1.0 / (1.0 + np.exp(-rng.normal(-1.5, 2.0, n)))
-    toppled = (rng.random((n, 3)) < 0.3).astype(float)
+    toppled = (rng.random((n, 5)) < 0.3).astype(float)
     truth = rng.random(n) < WEIGHTS.fuse(p_model, toppled)
     coef, bias = fit_weights(p_model, toppled, truth, l2=0.0)
-    np.testing.assert_allclose(coef, [0.7, 1.4, 1.6, 0.6], atol=0.12)
+    np.testing.assert_allclose(coef, [0.7, 1.4, 1.6, 0.6, 0.3, 0.5], atol=0.12)
     assert bias == pytest.approx(-2.8, abs=0.12)
     with pytest.raises(ValueError, match="topple and pushes that do not"):
         fit_weights(p_model, toppled, np.zeros(n))
@@ -84,21 +91,26 @@ def test_fused_per_step_probabilities_keep_the_timing():
 
 
 def test_solid_physics_tips_a_tall_box_and_slides_a_flat_one():
+    all_runs, no_run = [1.0] * len(RUNS), [0.0] * len(RUNS)
     with SolidPhysics(0.5) as physics:
         tall = box_cloud((0.04, 0.04, 0.24))
         ref = np.array([0.0, 0.0, 0.12])
-        assert physics.toppled(tall, ref, (0.3, 0.0, 0.0), (0.0, 6.0, 0.0)).tolist() == [1.0, 1.0, 1.0]
-        assert physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).tolist() == [0.0, 0.0, 0.0]
+        assert physics.toppled(tall, ref, *TIP).tolist() == all_runs
+        assert physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).tolist() == no_run
         flat = box_cloud((0.2, 0.15, 0.03))
-        assert physics.toppled(flat, (0.0, 0.0, 0.015), (0.8, 0.0, 0.0), (0.0, 0.0, 2.0)).tolist() == [0, 0, 0]
+        assert physics.toppled(flat, (0.0, 0.0, 0.015), (0.8, 0.0, 0.0), (0.0, 0.0, 2.0)).tolist() == no_run
         # the same rigid motion described about another point: the velocity there is v + w x r
-        w = np.array([0.0, 6.0, 0.0])
+        w = np.array(TIP[1])
         top = ref + [0.0, 0.0, 0.12]
-        assert physics.toppled(tall, top, np.cross(w, top - ref) + [0.3, 0.0, 0.0], w).tolist() == [1.0, 1.0, 1.0]
+        assert physics.toppled(tall, top, np.cross(w, top - ref) + TIP[0], w).tolist() == all_runs
+    # the runs' factors act: a push at the edge of tipping tips only the faster run
+    with SolidPhysics(0.5, runs=((1.0, 1.0), (1.0, 1.6))) as physics:
+        edge = [physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, s, 0.0)).tolist() for s in np.linspace(1, 5, 9)]
+        assert [0.0, 1.0] in edge and [0.0, 0.0] in edge and [1.0, 1.0] in edge and [1.0, 0.0] not in edge
     with pytest.raises(RuntimeError, match="closed"):
         physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    with pytest.raises(ValueError, match="friction_error"):
-        SolidPhysics(0.5, 1.5)
+    with pytest.raises(ValueError, match="friction"):
+        SolidPhysics(-0.5)
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +120,7 @@ def fused(tmp_path_factory):
     ckpt = folder / "default.pt"
     ckpt.symlink_to(DEFAULT_MODEL)
     plain = Predictor.load(ckpt)
-    replace(WEIGHTS, model_id=plain.model_id, model=0.0, nominal=8.0, lower=0.0, higher=0.0,
+    replace(WEIGHTS, model_id=plain.model_id, model=0.0, physics=(8.0, 0.0, 0.0, 0.0, 0.0),
             bias=-4.0).save(fusion_path(ckpt))
     return plain, Predictor.load(ckpt, topple_fusion=True)
 
@@ -117,7 +129,7 @@ def test_predictor_fuses_rollouts_of_clouds(fused):
     plain, pred = fused
     tall = box_cloud((0.04, 0.04, 0.24)) + [0.3, 0.1, 0.0]
     code = pred.encode(tall)
-    tip, rest = ((0.3, 0.0, 0.0), (0.0, 6.0, 0.0)), ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    tip, rest = TIP, ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     # above 0.5 the roll-out keeps its tilt, and a pose tilted past the topple angle counts as toppled (1)
     assert pred.rollout(code, *tip).topple_probability >= 1.0 / (1.0 + np.exp(-4.0)) - 1e-12
     assert pred.rollout(tall, *rest).topple_probability == pytest.approx(1.0 / (1.0 + np.exp(4.0)))

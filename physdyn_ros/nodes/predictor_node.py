@@ -137,6 +137,9 @@ class PredictorNode(ManagedNode):
         declare(self, "plan_whole_cloud", True, "plan_push's clouds sample every side of the object (the sim's "
                 "surface clouds): the physics check weighs the solid they enclose, not their convex hull "
                 "(shapes.solid); false for one camera's view")
+        declare(self, "plan_physics_fusion", True, "with whole clouds, the physics check's verdict is the model's "
+                "topple fusion with the solid's runs, where the checkpoint has .topple_fusion.json weights "
+                "(physdyn_ros.topple_fusion); false: the share of toppled runs vetoes")
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)

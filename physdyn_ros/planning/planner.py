@@ -38,6 +38,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from ..predictor import ShapeCode, Trajectory
+from ..topple_fusion import FusionWeights, fusion_path
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
 from .models import DynamicsModel
 from .physics_check import PhysicsCheck
@@ -68,14 +69,28 @@ class PushPlanner:
             self._physics = None
 
     def physics(self, cfg: PlannerConfig) -> Optional[PhysicsCheck]:
-        """The physics check for `cfg` (None when it checks none), kept while its friction stays the same."""
+        """The physics check for `cfg` (None when it checks none), kept while its friction stays the same; with
+        the model's topple fusion weights where cfg.physics_fusion asks for them and the checkpoint has them."""
         if not cfg.physics_check:
             return None
         frictions = (cfg.friction * (1.0 - cfg.friction_error), cfg.friction * (1.0 + cfg.friction_error))
-        if self._physics is None or self._physics.frictions != frictions:
+        fusion = self.fusion_weights() if cfg.physics_fusion else None
+        if self._physics is None or self._physics.frictions != frictions or self._physics.fusion != fusion:
             self.close()
-            self._physics = PhysicsCheck(cfg.friction, cfg.friction_error)
+            self._physics = PhysicsCheck(cfg.friction, cfg.friction_error, fusion=fusion)
         return self._physics
+
+    def fusion_weights(self) -> Optional[FusionWeights]:
+        """The topple fusion weights stored beside the model's checkpoint for this model (None: there are none,
+        or the model is not a loaded checkpoint); a file that cannot be read raises PlanningError."""
+        path = getattr(self.model, "path", "")
+        if not path or not fusion_path(path).is_file():
+            return None
+        try:
+            weights = FusionWeights.load(fusion_path(path))
+        except ValueError as exc:
+            raise PlanningError(str(exc)) from None
+        return weights if weights.model_id == str(self.model.model_id) else None
 
     def warm_up(self) -> None:
         """Pay one-off costs (open3d's import for hulls, model warm-up, timing calibration) outside a request."""
@@ -188,6 +203,12 @@ class PushPlanner:
         if best.off_table:
             raise PlanningError("every push considered leaves the table")
         worst = best.risk(cfg.pessimistic)
+        if best.physics_topple > cfg.max_topple_probability and best.topple <= cfg.max_topple_probability \
+                and search.fused:
+            raise PlanningError(f"no safe push: the pushes the model finds safe topple the object re-simulated on "
+                                f"the solid its cloud encloses (topple probability {best.physics_topple:.2f} of the "
+                                f"safest, the model fused with runs at friction {cfg.friction:g} and less and "
+                                "more); try a lower max_speed or a nearer goal")
         if best.physics_topple > cfg.max_topple_probability and best.topple <= cfg.max_topple_probability:
             raise PlanningError(f"no safe push: the pushes the model finds safe topple the object re-simulated on "
                                 f"its hull (in {100 * best.physics_topple:.0f} % of the runs of the safest, friction "
@@ -210,7 +231,9 @@ class PushPlanner:
         lin = np.array([best.speed * best.direction[0], best.speed * best.direction[1], 0.0])
         yaw_text = "" if goal.ignores_yaw else f", yaw {math.degrees(best.yaw_err):.1f} deg"
         robust = f", spread {100 * best.spread:.1f} cm" if search.checked else ""
-        if best.physics_topple >= 0:
+        if best.physics_topple >= 0 and search.fused:
+            robust += f", fused with the solid's physics {best.physics_topple:.2f}"
+        elif best.physics_topple >= 0:
             robust += f", hull physics topples {100 * best.physics_topple:.0f} % of its runs"
         msg = (f"{'within' if within else 'OUTSIDE'} tolerance: predicted to stop {100 * best.pos_err:.1f} cm"
                f"{yaw_text} from the goal (topple probability {worst:.2f}{robust}); push at "

@@ -125,11 +125,13 @@ class Candidate:
     worst_topple: float = 0.0  # highest topple probability over the push and its perturbed pushes
     spread: float = 0.0  # m, RMS distance of the perturbed rest positions from this push's
     worst_push: Optional[tuple[np.ndarray, np.ndarray]] = None  # (lin_vel, ang_vel) of its most toppling perturbation
-    physics_topple: float = -1.0  # share of toppled hull re-simulations (planning.physics_check); -1: not checked
+    # share of toppled hull re-simulations, or the topple fusion's probability (planning.physics_check); -1: not
+    # checked
+    physics_topple: float = -1.0
 
     def risk(self, pessimistic: bool) -> float:
         """The topple risk held to the limit: the push's own and, once checked, the mean (or, pessimistic, the
-        highest) over it and its perturbations, and the physics check's share of toppled runs."""
+        highest) over it and its perturbations, and the physics check's verdict."""
         return max(self.topple, self.worst_topple if pessimistic else self.robust_topple, self.physics_topple)
 
     @property
@@ -163,6 +165,7 @@ class Search:
         self.model, self.step_cost, self.code, self.body = model, step_cost, code, body
         self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
         self.physics = physics
+        self.fused = False  # the physics check's verdicts are the topple fusion's (_physics_checked)
         self.deadline = t0 + cfg.time_budget
         robust = cfg.robust_candidates > 0 and cfg.robust_samples > 0
         share = (cfg.robust_share if robust else 0.0) + (cfg.physics_share if physics is not None else 0.0)
@@ -391,6 +394,9 @@ class Search:
             return push if solid is None else (push[0], self.body.reweigh(solid, push[0], push[1])[0])
 
         hull = self.physics.encode(points, solid)
+        # the fusion was fitted on the solid's runs: with a hull only (one camera's view) the share of toppled
+        # runs vetoes
+        self.fused = self.physics.fusion is not None and solid is not None
         limit = cfg.max_topple_probability
         calm = sorted((c for c in self.seen if c.topple <= 0.5 * limit and c.cost < INFEASIBLE), key=lambda c: c.cost)
         safe = sorted(safe, key=lambda c: c.robust_cost)
@@ -407,9 +413,13 @@ class Search:
                 self._perturb([c], cfg.robust_samples)
                 if c.risk(cfg.pessimistic) > limit:
                     continue
-            worst = None if c.worst_push is None else executed(c.worst_push)
-            c.physics_topple = self.physics.topple_share(hull, executed((c.lin_vel, c.ang_vel)), worst,
-                                                         self.horizon, limit)
+            if self.fused:
+                c.physics_topple = self.physics.fused_topple(hull, executed((c.lin_vel, c.ang_vel)), c.topple,
+                                                             self.horizon)
+            else:
+                worst = None if c.worst_push is None else executed(c.worst_push)
+                c.physics_topple = self.physics.topple_share(hull, executed((c.lin_vel, c.ang_vel)), worst,
+                                                             self.horizon, limit)
             checked.append(c)
             if c.risk(cfg.pessimistic) <= limit:
                 return c

@@ -213,6 +213,8 @@ class PlannerConfig:
     detect_symmetry: bool = True  # a goal of unknown yaw_symmetry takes the cloud's (planning.symmetry)
     whole_cloud: bool = True  # clouds sample every side of the object: the physics check weighs the solid they
     #                           enclose, not their hull (shapes.solid); False for one camera's view
+    physics_fusion: bool = True  # with whole clouds and a model whose checkpoint has topple fusion weights
+    #                              (physdyn_ros.topple_fusion): the physics check's verdict is the fused probability
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "min_speed", "time_budget", "settle_time", "friction", "min_friction",
@@ -280,7 +282,9 @@ class PushPlan:
     robust_topple_probability: float  # mean topple probability over this push and its perturbations (robustness)
     worst_topple_probability: float  # highest topple probability over this push and its perturbations
     spread: float  # m, RMS distance of the perturbed pushes' rest positions from this push's (0: not checked)
-    physics_topple_probability: float  # share of the physics check's hull runs that toppled (-1: not checked)
+    # the physics check's topple probability: the share of its hull runs that toppled, or with the topple fusion
+    # the fused probability of the model and the solid's runs (-1: not checked)
+    physics_topple_probability: float
     within_tolerance: bool  # the predicted final pose is within both tolerances
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
     planning_time: float  # s, wall time of the plan() call

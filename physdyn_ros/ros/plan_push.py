@@ -64,6 +64,7 @@ def planner_config(req: PlanPush.Request, param: Callable[[str], Any]):
                          max_contact_height=float(param("plan_max_contact_height")),
                          physics_check=bool(param("plan_physics_check")),
                          whole_cloud=bool(param("plan_whole_cloud")),
+                         physics_fusion=bool(param("plan_physics_fusion")),
                          table=TableBounds(*bounds) if bounds else None)
 
 
