@@ -265,7 +265,7 @@ class Predictor:
         `topple_fusion`: `rollout` of a cloud (or of a code encoded from one) fuses the model's whole-push topple
         probability with pybullet on the solid the cloud encloses, at `friction` and 20 % less and more
         (physdyn_ros.topple_fusion, weights stored beside the checkpoint: FileNotFoundError without them). Only
-        for whole clouds (every side of the object sampled); the solid and three short simulations add 20-50 ms to
+        for whole clouds (every side of the object sampled); the solid and five short simulations add 25-120 ms to
         each call. Batched roll-outs stay the model's.
         """
         import torch

@@ -28,7 +28,7 @@ The runs were chosen by cross-validation over the fitting families (each family 
 the others): these five against the first three alone, or with each run's largest tilt.
 
 The solid needs every side of the object (a scan, several cameras, the sim's whole clouds): one camera's view
-encloses nothing (shapes.solid). The solid and the five runs cost 20-60 ms a push: the fusion is for single
+encloses nothing (shapes.solid). The solid and the five runs cost 25-120 ms a push: the fusion is for single
 predictions, not a planner's thousands of candidates (the planner re-simulates its finalists instead:
 planning.physics_check).
 """

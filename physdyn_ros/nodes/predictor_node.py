@@ -95,7 +95,7 @@ class PredictorNode(ManagedNode):
         declare(self, "num_threads", 1, "torch intra-op threads (set explicitly: no oversubscription; read on "
                 "configure)", low=1, high=256)
         declare(self, "topple_fusion", False, "predict_trajectory requests with a whole cloud fuse the model's "
-                "topple probability with pybullet on the cloud's solid (3 runs, 20-50 ms more; needs the "
+                "topple probability with pybullet on the cloud's solid (5 runs, 25-120 ms more; needs the "
                 "checkpoint's .topple_fusion.json; read on configure)")
         declare(self, "topple_fusion_friction", 0.5, "nominal Coulomb friction of the topple fusion's physics (read "
                 "on configure)", low=0.01, high=10.0)
