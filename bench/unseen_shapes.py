@@ -20,6 +20,8 @@
 Groups: the broad world's test shapes of the trained families ("in_category"), its held-out families
 ("held_out": manifest test_groups), and the pybullet_data meshes; plus the held-out families seen as one depth
 camera's partial view with 2 mm noise ("held_out_partial", the model only: the baselines keep the whole cloud).
+With whole clouds, where the checkpoint has topple fusion weights, also the fusion's topple decisions on the
+same pushes (physdyn_ros.topple_fusion; its motion is the model's).
 Each runs `physdyn evaluate` (roll-outs from the true initial state, 60 steps = 4 s; motion errors over the
 pushes that do not topple) with the baselines: the object stays still, Coulomb sliding with the true friction,
 pybullet on the cloud's convex hull with friction -20 % / +20 %. Also the centre-of-mass estimate on partial
@@ -58,6 +60,35 @@ def evaluate(ckpt: str, data: str, out: Path, categories: list[str] | None, max_
                 "f1": (r.get("topple") or {}).get("f1"), "precision": (r.get("topple") or {}).get("precision"),
                 "recall": (r.get("topple") or {}).get("recall"), "brier": (r.get("topple") or {}).get("brier")}
             for m, r in overall.items()}
+
+
+def fusion_scores(ckpt: str, data: str, categories: list[str] | None, max_sequences: int) -> dict | None:
+    """Topple F1, precision, recall, Brier of the checkpoint's topple fusion (physdyn_ros.topple_fusion: the model
+    with pybullet on the whole cloud's solid) on the pushes `physdyn evaluate` scores; None without weights."""
+    import torch
+
+    from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.windows import load_sims
+    from physdyn_ros.topple_fusion import FusionWeights, fusion_path
+    from physdyn_ros.topple_fusion_fit import model_and_truth, push_verdicts
+
+    if not fusion_path(ckpt).is_file():
+        return None
+    weights = FusionWeights.load(fusion_path(ckpt))
+    torch.set_num_threads(1)
+    model, _ = load_model(ckpt)
+    sims = load_sims(data, ["test"], categories=categories)
+    index = np.arange(len(sims))
+    if max_sequences < len(index):  # evaluate's choice of pushes
+        index = np.linspace(0, len(sims) - 1, max_sequences).astype(np.int64)
+    p_model, truth = model_and_truth(model, sims, index)
+    p = weights.fuse(p_model, push_verdicts(sims, index))
+    pred, true = p >= 0.5, truth > 0.5
+    tp = int(np.sum(pred & true))
+    return {"pos_median": None, "pos_p90": None, "rot_median": None, "rot_p90": None,
+            "f1": round(2 * tp / max(int(pred.sum()) + int(true.sum()), 1), 4),
+            "precision": round(tp / max(int(pred.sum()), 1), 4), "recall": round(tp / max(int(true.sum()), 1), 4),
+            "brier": round(float(np.mean((p - true) ** 2)), 4)}
 
 
 def com_errors(ckpt: str, data: str, categories: list[str], max_sequences: int) -> dict:
@@ -149,14 +180,18 @@ def main() -> int:
     result: dict = {}
     for name, data, cats, baselines, partial in plan:
         result[name] = evaluate(args.checkpoint, data, args.out / name, cats, args.max_sequences, baselines, partial)
+        fused = None if partial else fusion_scores(args.checkpoint, data, cats, args.max_sequences)
+        if fused is not None:  # whole clouds only: one camera's view encloses no solid
+            result[name]["fusion"] = fused
         print(f"\n{name} ({args.max_sequences} sequences at most; final pose after 4 s, pushes that do not topple)")
         print(f"{'method':<18} {'pos cm med / p90':>18} {'rot deg med / p90':>19} {'topple F1 (P / R)':>19} "
               f"{'Brier':>6}")
         for m, r in result[name].items():
             f1 = "-" if r["f1"] is None else f"{r['f1']:.3f} ({r['precision'] or 0:.2f} / {r['recall'] or 0:.2f})"
             brier = "-" if r["brier"] is None else f"{r['brier']:.3f}"
-            print(f"{m:<18} {r['pos_median']:>8.2f} / {r['pos_p90']:<7.2f} {r['rot_median']:>8.2f} / "
-                  f"{r['rot_p90']:<7.2f} {f1:>19} {brier:>6}")
+            motion = "(the model's motion)".center(37) if r["pos_median"] is None else (
+                f"{r['pos_median']:>8.2f} / {r['pos_p90']:<7.2f} {r['rot_median']:>8.2f} / {r['rot_p90']:<7.2f}")
+            print(f"{m:<18} {motion} {f1:>19} {brier:>6}")
     result["com_partial"] = com_errors(args.checkpoint, args.data, held_out, args.max_sequences)
     novelty = {name: novelty_rates(args.checkpoint, data, cats, args.max_sequences, partial)
                for name, data, cats, _, partial in plan}
