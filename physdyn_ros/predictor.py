@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
@@ -45,6 +45,9 @@ from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppl
 from .learn.support import DESCRIPTOR_POINTS, support_descriptors
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
+
+#: Fewest points the topple fusion simulates (fewer make no solid: the model's probability stands).
+MIN_FUSION_POINTS = 16
 
 
 @dataclass(frozen=True)
@@ -263,10 +266,11 @@ class Predictor:
         where it is built (learn/native.py; PHYSDYN_BATCH1_KERNEL=numpy forces the numpy kernel).
 
         `topple_fusion`: `rollout` of a cloud (or of a code encoded from one) fuses the model's whole-push topple
-        probability with pybullet on the solid the cloud encloses, at `friction` and 20 % less and more
-        (physdyn_ros.topple_fusion, weights stored beside the checkpoint: FileNotFoundError without them). Only
-        for whole clouds (every side of the object sampled); the solid and five short simulations add 25-120 ms to
-        each call. Batched roll-outs stay the model's.
+        probability with pybullet on the solid the cloud encloses, the push at `friction`, 20 % less and more
+        friction, 10 % slower and faster (physdyn_ros.topple_fusion, weights stored beside the checkpoint:
+        FileNotFoundError without them). Only for whole clouds (every side of the object sampled, at least
+        MIN_FUSION_POINTS points, not flat: others keep the model's probability); the solid and five short
+        simulations add about 25-120 ms to each call. Batched roll-outs stay the model's.
         """
         import torch
 
@@ -298,12 +302,19 @@ class Predictor:
         return pred
 
     def _warm_up(self) -> None:
-        """Run the compiled roll-out a few times: TorchScript optimises a function on its first calls."""
+        """Run the compiled roll-out a few times: TorchScript optimises a function on its first calls (the model
+        alone: the topple fusion's physics has nothing to warm up)."""
         rng = np.random.default_rng(0)
         cloud = rng.uniform(-0.05, 0.05, size=(self.num_points, 3)) * (1.0, 0.6, 1.5)
-        code = self.encode(cloud)
+        code = replace(self.encode(cloud), points=None)
         for _ in range(3):
             self.rollout(code, (0.5, 0.1, 0.0), (0.0, 0.0, 1.0), horizon=min(60, self.max_horizon))
+
+    def close(self) -> None:
+        """Release the topple fusion's pybullet client, if any (the model needs no closing)."""
+        if self.topple_fusion is not None:
+            self.topple_fusion.close()
+            self.topple_fusion = None
 
     # ----------------------------------------------------------------------------------------------- encode
     def _subset(self, n: int, wanted: int = 0) -> np.ndarray:
@@ -357,7 +368,7 @@ class Predictor:
             codes.append(ShapeCode(feature=feature, heading=float(c.heading),
                                    centroid=c.centroid + c_to_world(offset, float(c.heading)),
                                    half_extents=0.5 * (loc.max(axis=0) - loc.min(axis=0)), num_points=int(len(p)),
-                                   model_id=self.model_id, points=p))
+                                   model_id=self.model_id, points=p.copy()))
         return codes
 
     def _check_code(self, code: ShapeCode) -> None:
@@ -398,7 +409,8 @@ class Predictor:
 
         Returns:
             A Trajectory of horizon + 1 states (frame 0 the given start) with topple probabilities and novelty;
-            with topple_fusion set and the code's points known, its whole-push topple probability is the fused one.
+            with topple_fusion set and the code's points known (a cloud of the object as it is when the push
+            starts), its whole-push topple probability is the fused one.
         """
         code = self._code(shape)
         horizon = self._check_horizon(horizon)
@@ -408,11 +420,14 @@ class Predictor:
         q0 = np.array([0.0, 0.0, 0.0, 1.0]) if orientation is None else _quaternions(orientation, "orientation")[0]
         obs = self._check_observed(observed, horizon)
         fuse = None
-        if self.topple_fusion is not None and code.points is not None:
-            # the cloud moved rigidly from where it was seen (its code's centroid, identity) to the start pose
-            cloud = Rotation.from_quat(q0).apply(code.points - code.centroid) + p0
-            toppled = self.topple_fusion.physics.toppled(cloud, p0, v0, w0)
-            fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
+        if self.topple_fusion is not None and code.points is not None and len(code.points) >= MIN_FUSION_POINTS:
+            # the cloud is the object where the push starts (position and orientation only name that pose); the
+            # velocities refer to the start position, the physics moves them to the solid's own centre of mass
+            try:
+                toppled = self.topple_fusion.physics.toppled(code.points, p0, v0, w0)
+                fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
+            except ValueError:  # a cloud that encloses no solid (flat, a line): the model's probability stands
+                fuse = None
         batch = self._run(code.feature[None], np.array([code.heading]), v0[None], w0[None], p0[None], q0[None],
                           horizon, obs, fuse=fuse)
         return batch[0]

@@ -92,6 +92,9 @@ class FusionWeights:
             with os.fdopen(fd, "w") as f:
                 json.dump(asdict(self), f, indent=1)
                 f.write("\n")
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would hide the weights from a node run by another user
             os.replace(tmp, path)
         except BaseException:
             os.unlink(tmp)
@@ -110,9 +113,11 @@ class FusionWeights:
         except (OSError, ValueError, TypeError, KeyError) as exc:
             raise ValueError(f"{path}: not topple fusion weights ({type(exc).__name__}: {exc})") from None
         numbers = (weights.model, *weights.physics, weights.bias)
-        if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in numbers):
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in numbers):
             raise ValueError(f"{path}: the weights must be finite numbers, got {numbers}")
-        if len(weights.physics) != len(weights.runs) or not all(
+        if not isinstance(weights.model_id, str) or not isinstance(weights.pushes, int):
+            raise ValueError(f"{path}: model_id must be a string and pushes an integer")
+        if not weights.runs or len(weights.physics) != len(weights.runs) or not all(
                 len(r) == 2 and all(isinstance(f, (int, float)) and 0.0 < f < 10.0 for f in r) for r in weights.runs):
             raise ValueError(f"{path}: one weight per run and runs of two positive factors expected, got "
                              f"{len(weights.physics)} weights for runs {weights.runs}")

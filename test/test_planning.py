@@ -498,7 +498,7 @@ def test_the_physics_check_fuses_with_the_models_topple_fusion(tmp_path):
     verdict is the fused probability over the solid's runs (topple_fusion.RUNS); a push that tips the solid in
     most runs is vetoed whatever the model and the weights say. Without weights, for another model, with one
     camera's view or physics_fusion off, the share of toppled hull runs vetoes as before."""
-    from physdyn_ros.topple_fusion import RUNS, FusionWeights, fusion_path
+    from physdyn_ros.topple_fusion import RUNS, FusionWeights
 
     class Sliding(AnalyticSlidingModel):  # never predicts a topple; a checkpoint path for the weights
         path = str(tmp_path / "model.pt")
@@ -510,8 +510,17 @@ def test_the_physics_check_fuses_with_the_models_topple_fusion(tmp_path):
     far = Goal(Pose2D(0.15, 0.0, 0.0), 0.02, math.pi)
     tall, squat = box_cloud(half=(0.025, 0.025, 0.1), n=1500), box_cloud(half=(0.04, 0.04, 0.05), n=1500)
     planner = PushPlanner(model, cfg)
+    try:
+        _fused_checks(planner, model, trusting, cfg, far, tall, squat, Sliding.path)
+    finally:
+        planner.close()
+
+
+def _fused_checks(planner, model, trusting, cfg, far, tall, squat, path):
+    from physdyn_ros.topple_fusion import fusion_path
+
     assert planner.fusion_weights() is None  # no file yet
-    trusting.save(fusion_path(Sliding.path))
+    trusting.save(fusion_path(path))
     assert planner.fusion_weights() == trusting
     with pytest.raises(PlanningError, match="re-simulated on the solid its cloud encloses"):
         planner.plan(tall, Pose2D(0, 0, 0), far)  # the runs tip the tall box: vetoed despite the weights
@@ -521,9 +530,9 @@ def test_the_physics_check_fuses_with_the_models_topple_fusion(tmp_path):
         with pytest.raises(PlanningError, match="re-simulated on its hull"):
             planner.plan(tall, Pose2D(0, 0, 0), far, config=other)
     # weights fitted for another model are not used
-    replace(trusting, model_id="another").save(fusion_path(Sliding.path))
+    replace(trusting, model_id="another").save(fusion_path(path))
     assert planner.fusion_weights() is None
-    fusion_path(Sliding.path).write_text("{broken")
+    fusion_path(path).write_text("{broken")
     with pytest.raises(PlanningError, match="not topple fusion weights"):
         planner.plan(squat, Pose2D(0, 0, 0), far)
-    planner.close()
+    planner.plan(squat, Pose2D(0, 0, 0), far, config=replace(cfg, whole_cloud=False))  # weights not needed

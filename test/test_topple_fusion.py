@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import replace
 
 import numpy as np
@@ -42,6 +43,9 @@ def test_weights_round_trip_and_fuse(tmp_path):
     WEIGHTS.save(path)
     assert FusionWeights.load(path) == WEIGHTS
     assert not list(tmp_path.glob("*.tmp"))  # the temporary file was renamed
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # as any file the user writes, not mkstemp's 0600
     p = WEIGHTS.fuse(np.array([0.5, 0.5, 0.9]), np.array([[0, 0, 0, 0, 0], [1, 1, 1, 1, 1], [0, 1, 0, 0, 1]]))
     z = np.array([-2.8, -2.8 + 4.4, 0.7 * np.log(9.0) + 1.6 + 0.5 - 2.8])
     np.testing.assert_allclose(p, 1.0 / (1.0 + np.exp(-z)))
@@ -60,7 +64,10 @@ def _edited(**changes) -> str:
                                             (_edited(physics=[1.0, 2.0]), "one weight per run"),
                                             (_edited(runs=[[1.0, 1.0], [0.8, 1.0], [1.2], [1, 1], [1, 1]]),
                                              "one weight per run"),
-                                            (_edited(runs=[[1.0, -1.0]] * 5), "one weight per run")])
+                                            (_edited(runs=[[1.0, -1.0]] * 5), "one weight per run"),
+                                            (_edited(runs=[], physics=[]), "one weight per run"),
+                                            (_edited(model=True), "must be finite numbers"),
+                                            (_edited(model_id=3), "model_id must be a string")])
 def test_bad_weight_files_are_refused(tmp_path, content, match):
     path = tmp_path / "w.json"
     path.write_text(content)
@@ -99,10 +106,11 @@ def test_solid_physics_tips_a_tall_box_and_slides_a_flat_one():
         assert physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)).tolist() == no_run
         flat = box_cloud((0.2, 0.15, 0.03))
         assert physics.toppled(flat, (0.0, 0.0, 0.015), (0.8, 0.0, 0.0), (0.0, 0.0, 2.0)).tolist() == no_run
-        # the same rigid motion described about another point: the velocity there is v + w x r
-        w = np.array(TIP[1])
-        top = ref + [0.0, 0.0, 0.12]
-        assert physics.toppled(tall, top, np.cross(w, top - ref) + TIP[0], w).tolist() == all_runs
+        # a spin in place described about a point 0.5 m away, where the body moves at w x r = 2 m/s: taken as the
+        # centre of mass's velocity, that slide would tip the box
+        spin, far = np.array([0.0, 0.0, 4.0]), ref + [0.5, 0.0, 0.0]
+        assert physics.toppled(tall, ref, np.cross(spin, far - ref), spin).tolist() == all_runs
+        assert physics.toppled(tall, far, np.cross(spin, far - ref), spin).tolist() == no_run
     # the runs' factors act: a push at the edge of tipping tips only the faster run
     with SolidPhysics(0.5, runs=((1.0, 1.0), (1.0, 1.6))) as physics:
         edge = [physics.toppled(tall, ref, (0.0, 0.0, 0.0), (0.0, s, 0.0)).tolist() for s in np.linspace(1, 5, 9)]
@@ -120,8 +128,9 @@ def fused(tmp_path_factory):
     ckpt = folder / "default.pt"
     ckpt.symlink_to(DEFAULT_MODEL)
     plain = Predictor.load(ckpt)
-    replace(WEIGHTS, model_id=plain.model_id, model=0.0, physics=(8.0, 0.0, 0.0, 0.0, 0.0),
-            bias=-4.0).save(fusion_path(ckpt))
+    # weights that ignore the model (0) and contradict the first physics run: 0.018 where it tips, 0.982 where not
+    replace(WEIGHTS, model_id=plain.model_id, model=0.0, physics=(-8.0, 0.0, 0.0, 0.0, 0.0),
+            bias=4.0).save(fusion_path(ckpt))
     return plain, Predictor.load(ckpt, topple_fusion=True)
 
 
@@ -130,17 +139,45 @@ def test_predictor_fuses_rollouts_of_clouds(fused):
     tall = box_cloud((0.04, 0.04, 0.24)) + [0.3, 0.1, 0.0]
     code = pred.encode(tall)
     tip, rest = TIP, ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    # above 0.5 the roll-out keeps its tilt, and a pose tilted past the topple angle counts as toppled (1)
-    assert pred.rollout(code, *tip).topple_probability >= 1.0 / (1.0 + np.exp(-4.0)) - 1e-12
-    assert pred.rollout(tall, *rest).topple_probability == pytest.approx(1.0 / (1.0 + np.exp(4.0)))
-    # the motion is the model's either way; a code without points (a shape feature message's) is not fused, nor
-    # are batched roll-outs
-    a, b = pred.rollout(code, *tip), plain.rollout(code, *tip)
-    np.testing.assert_array_equal(a.positions, b.positions)
+    low, high = 1.0 / (1.0 + np.exp(4.0)), 1.0 / (1.0 + np.exp(-4.0))
+    assert plain.rollout(code, *tip).topple_probability > 0.9 and plain.rollout(code, *rest).topple_probability < 0.01
+    tipped = pred.rollout(code, *tip)
+    assert tipped.topple_probability == pytest.approx(low)
+    assert np.all(tipped.orientations[:, :2] == 0.0)  # a "no" at or under 0.5 keeps the roll-out flat
+    assert pred.rollout(tall, *rest).topple_probability == pytest.approx(high)
+    # a code without points (a shape feature message's) is not fused, nor are batched roll-outs; the positions of
+    # a push the fusion does not flip are the model's
+    still = pred.rollout(code, *rest), plain.rollout(code, *rest)
+    np.testing.assert_array_equal(still[0].positions, still[1].positions)
     bare = replace(code, points=None)
     assert pred.rollout(bare, *tip).topple_probability == plain.rollout(bare, *tip).topple_probability
     np.testing.assert_array_equal(pred.rollout_batch(code, *tip).topple_prob,
                                   plain.rollout_batch(code, *tip).topple_prob)
+
+
+def test_predictor_simulates_the_cloud_where_it_is(fused):
+    """The cloud is the object at the start of the push; position and orientation name that pose and do not move
+    it again. A slab 4 cm thick along x tips when pushed along x, not along y: given with an orientation of 90 deg
+    yaw, it must still tip along x (turning the cloud by the orientation would have the push along its long side)."""
+    _, pred = fused
+    slab = box_cloud((0.04, 0.16, 0.2)) + [0.2, -0.1, 0.0]
+    yaw90 = (0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4))
+    centre = slab.mean(axis=0)
+    with SolidPhysics(0.5) as physics:
+        assert physics.toppled(slab, centre, (0.5, 0.0, 0.0), (0.0, 0.0, 0.0)).tolist() == [1.0] * len(RUNS)
+        assert physics.toppled(slab, centre, (0.0, 0.5, 0.0), (0.0, 0.0, 0.0)).tolist() == [0.0] * len(RUNS)
+    low = 1.0 / (1.0 + np.exp(4.0))  # the fixture's weights: the first run tipped
+    assert pred.rollout(slab, (0.5, 0.0, 0.0), (0.0, 0.0, 0.0), position=centre,
+                        orientation=yaw90).topple_probability == pytest.approx(low)
+
+
+def test_small_or_flat_clouds_keep_the_models_probability(fused):
+    plain, pred = fused
+    few = box_cloud((0.04, 0.04, 0.24), n=12)
+    flat = box_cloud((0.1, 0.1, 0.02))
+    flat[:, 2] = 0.0
+    for cloud in (few, flat):
+        assert pred.rollout(cloud, *TIP).topple_probability == plain.rollout(cloud, *TIP).topple_probability
 
 
 def test_predictor_refuses_missing_or_foreign_weights(tmp_path):

@@ -228,6 +228,9 @@ class PredictorNode(ManagedNode):
             self._latest_feature_id = None
             self._parked.clear()
             self._pending.clear()
+        for holder in (self.planner, self.predictor):  # their pybullet clients (physics check, topple fusion)
+            if holder is not None:
+                holder.close()
         self.predictor = self.planner = None  # the model's tensors go with the last references
         self.model_id = ""
         import gc

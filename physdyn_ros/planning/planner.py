@@ -61,6 +61,7 @@ class PushPlanner:
         self.config = config
         self._step_cost = StepCost()  # measured cost of one candidate-step, shared by this planner's searches
         self._physics: Optional[PhysicsCheck] = None  # created on the first plan that checks (imports pybullet)
+        self._weights: tuple[Any, Optional[FusionWeights]] = (None, None)  # (file stamp, weights) read last
 
     def close(self) -> None:
         """Release the physics check's simulator (the model stays the caller's)."""
@@ -74,7 +75,7 @@ class PushPlanner:
         if not cfg.physics_check:
             return None
         frictions = (cfg.friction * (1.0 - cfg.friction_error), cfg.friction * (1.0 + cfg.friction_error))
-        fusion = self.fusion_weights() if cfg.physics_fusion else None
+        fusion = self.fusion_weights() if cfg.physics_fusion and cfg.whole_cloud else None
         if self._physics is None or self._physics.frictions != frictions or self._physics.fusion != fusion:
             self.close()
             self._physics = PhysicsCheck(cfg.friction, cfg.friction_error, fusion=fusion)
@@ -86,11 +87,15 @@ class PushPlanner:
         path = getattr(self.model, "path", "")
         if not path or not fusion_path(path).is_file():
             return None
-        try:
-            weights = FusionWeights.load(fusion_path(path))
-        except ValueError as exc:
-            raise PlanningError(str(exc)) from None
-        return weights if weights.model_id == str(self.model.model_id) else None
+        st = fusion_path(path).stat()
+        stamp = (str(path), st.st_mtime_ns, st.st_size)
+        if self._weights[0] != stamp:  # read once per version of the file
+            try:
+                self._weights = (stamp, FusionWeights.load(fusion_path(path)))
+            except (OSError, ValueError) as exc:
+                raise PlanningError(str(exc)) from None
+        weights = self._weights[1]
+        return weights if weights is not None and weights.model_id == str(self.model.model_id) else None
 
     def warm_up(self) -> None:
         """Pay one-off costs (open3d's import for hulls, model warm-up, timing calibration) outside a request."""

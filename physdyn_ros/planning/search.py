@@ -413,9 +413,10 @@ class Search:
                 self._perturb([c], cfg.robust_samples)
                 if c.risk(cfg.pessimistic) > limit:
                     continue
-            if self.fused:
-                c.physics_topple = self.physics.fused_topple(hull, executed((c.lin_vel, c.ang_vel)), c.topple,
-                                                             self.horizon)
+            if self.fused:  # the model's own whole-push probability, as the weights were fitted (c.topple also
+                # counts the tipping estimate)
+                c.physics_topple = self.physics.fused_topple(hull, executed((c.lin_vel, c.ang_vel)),
+                                                             float(c.trajectory.topple_prob.max()), self.horizon)
             else:
                 worst = None if c.worst_push is None else executed(c.worst_push)
                 c.physics_topple = self.physics.topple_share(hull, executed((c.lin_vel, c.ang_vel)), worst,
