@@ -435,3 +435,37 @@ def test_predictions_carry_their_novelty(rclpy_init, predictor):
     with Spinner(plain, c.node):
         res = call(c.srv, request(cloud=xyz_to_cloud(box, "world"), position=(0.2, 0.1, 0.06)))
     assert res.success and math.isnan(res.trajectory.novelty)
+
+
+def test_topple_fusion_in_the_service(rclpy_init, predictor, tiny_model):
+    """topple_fusion: predict_trajectory with a cloud answers the fused topple probability (what the Python
+    Predictor with the same weights gives), requests by object_id (a shape feature, no points) the model's; a
+    model without a topple head cannot be fused and the node refuses to start, naming the reason."""
+    from physdyn_ros.predictor import Predictor
+    from physdyn_ros.resources import DEFAULT_MODEL
+
+    # a slow push of a tall box: the model and its physics disagree enough to tell them apart
+    tall = (RNG.uniform(-1, 1, (1500, 3)) * (0.02, 0.02, 0.12) + (0.2, 0.1, 0.12)).astype(np.float32)
+    push = dict(position=(0.2, 0.1, 0.12), v=(0.2, 0.0, 0.0), w=(0.0, 0.0, 0.0))
+    fused_py = Predictor.load(DEFAULT_MODEL, threads=1, topple_fusion=True)
+    plain_py = Predictor.load(DEFAULT_MODEL, threads=1)
+    args = (tall.astype(np.float64), push["v"], push["w"], 60, push["position"])
+    expected, model_only = (p.rollout(*args).topple_probability for p in (fused_py, plain_py))
+    fused_py.close()
+    assert abs(expected - model_only) > 0.05  # the scenario: the fusion moves the probability
+    node = predictor(model_path=str(DEFAULT_MODEL), topple_fusion=True)
+    c = Client(rclpy_init)
+    with Spinner(node, c.node):
+        res = call(c.srv, request(cloud=xyz_to_cloud(tall, "world"), horizon=60, **push))
+        assert res.success, res.message
+        assert res.topple_probability == pytest.approx(expected, abs=1e-6)
+        c.features.publish(feature_msg(node.predictor, object_id="mug"))
+        assert wait_for(lambda: "mug" in node._features)
+        res = call(c.srv, request(object_id="mug", horizon=60))
+        assert res.success, res.message  # a shape feature carries no points: the model's probability
+    node.cleanup()  # releases the fusion's and the physics check's pybullet clients
+    assert node.predictor is None
+    run = subprocess.run([sys.executable, "-m", "physdyn_ros.nodes.predictor_node", "--ros-args",
+                          "-p", f"model_path:={tiny_model}", "-p", "topple_fusion:=true"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1 and "no whole-push topple head" in run.stderr, run.stderr[-2000:]
