@@ -167,6 +167,27 @@ def test_simulate_from_state_reproduces_and_accepts_clouds():
     assert np.linalg.norm(hi["pos"][-1, :2] - pos[:2]) < np.linalg.norm(hull_run["pos"][-1, :2] - pos[:2])
 
 
+def test_simulate_from_state_starts_with_the_contacts_of_a_resting_object():
+    """A fast tilting push of a settled prism (pybullet_data's, as the planning bench meets it: 0.6 m/s, 24 rad/s
+    about a horizontal axis) leaves it upright; re-simulated from the same state it must too. A body teleported
+    onto the table and launched at once meets it with no contacts and toppled on the third frame."""
+    from physdyn_ros.shapes import resolve_shape
+
+    shape = resolve_shape("pybullet_data", 5)
+    v, w = np.array([0.49, 0.35, 0.0]), np.array([13.8, -16.4, 12.0])
+    with Simulator(SimConfig(collision="parts")) as sim:
+        sim.spawn(shape, xy=(0.0, 0.0), yaw=-0.8475)
+        pos, q, _, _ = sim.state()
+        sim.set_velocity(v, w)
+        ref = record(sim, 76)
+        scale = sim.scale
+    again = simulate_from_state(shape, scale, pos, q, v, w, friction=0.5, num_frames=76,
+                                config=SimConfig(collision="parts"))
+    assert ref["topple_index"] == -1 and again["topple_index"] == -1
+    np.testing.assert_allclose(again["pos"][0], pos, atol=1e-9)  # the run starts exactly at the given pose
+    np.testing.assert_allclose(again["lin_vel"][0], v, atol=1e-6)
+
+
 def test_concave_shape_uses_cached_convex_decomposition(tmp_path):
     from physdyn_ros.sim import convex_decomposition
 

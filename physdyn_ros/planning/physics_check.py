@@ -15,7 +15,7 @@
 
 Why: on shapes unlike those it was trained on, the learned topple head misses topples that physics on the hull
 catches (held-out families, 3,000 pushes: the model finds 80 % of the topples, the hull at friction -20 % / +20 % 97 %
-/ 99 %; bench/topple_mix.py), while the hull cries topple where the real object would not (precision 0.75-0.76: it
+/ 98 %; bench/topple_mix.py), while the hull cries topple where the real object would not (precision 0.76-0.79: it
 knows neither the true mass distribution nor the friction). So the hull vetoes rather than decides: a push is safe
 when both the learned model and the hull say so. Each finalist is simulated at the nominal friction and at
 friction_error more (sliding friction tips an object forward over its leading edge), and its most toppling
@@ -29,7 +29,7 @@ vetoed by one.
 With a whole cloud and the model's topple fusion weights (physdyn_ros.topple_fusion: fitted on pushes of new
 shapes, the hull weighing as the cloud's solid, the push at 20 % less and more friction and 10 % slower and
 faster), the verdict is instead the fused probability of the model's whole-push probability and those runs
-(`fused_topple`): better calibrated on held-out families than either (Brier 0.022 against the hull's 0.050). A
+(`fused_topple`): better calibrated on held-out families than either (Brier 0.020 against the hull's 0.044). A
 push that tips the solid in most runs is vetoed whatever the model says: the weights were fitted on random pushes,
 while a planner seeks out exactly the pushes the model calls safe (bench/bench_planning.py, 84 trials of a fixed
 search: the fusion alone let 7 objects topple, the share of toppled runs 3, the fusion with this veto 3, with as
