@@ -64,6 +64,16 @@ def run(args: argparse.Namespace) -> int:
             info["default_model_id"] = load_checkpoint(DEFAULT_MODEL)["model_id"]
         except Exception as exc:  # noqa: BLE001 - info reports a broken model, it does not fail on it
             info["default_model_id"] = f"unreadable ({exc})"
+        from physdyn_ros.topple_fusion import FusionWeights, fusion_path
+
+        try:  # Predictor.load(topple_fusion=True) and the planner's physics check read it
+            weights = FusionWeights.load(fusion_path(DEFAULT_MODEL))
+            info["topple_fusion"] = (f"{fusion_path(DEFAULT_MODEL).name}, for {weights.model_id}, fitted on "
+                                     f"{weights.pushes} pushes of {weights.fitted_on}")
+        except FileNotFoundError:
+            info["topple_fusion"] = "none"
+        except ValueError as exc:
+            info["topple_fusion"] = f"unreadable ({exc})"
     if args.json:
         print(json.dumps(info, indent=2))
     else:

@@ -74,3 +74,6 @@ def test_info_prints_only_json_and_the_model_id():
     info = json.loads(run.stdout)  # nothing but JSON on stdout
     assert re.fullmatch(r"[\w.-]+-[0-9a-f]{12}", info["default_model_id"]), info["default_model_id"]
     assert not str(info["pybullet"]).startswith("missing")
+    # the shipped topple fusion weights belong to the shipped model
+    assert info["topple_fusion"].startswith("default.topple_fusion.json, for " + info["default_model_id"] + ","), \
+        info["topple_fusion"]
