@@ -45,13 +45,11 @@ sys.path.insert(0, str(ROOT))
 
 
 def scores(prob: np.ndarray, truth: np.ndarray) -> dict:
-    pred, true = prob >= 0.5, truth > 0.5
-    tp = int(np.sum(pred & true))
-    precision = tp / max(int(pred.sum()), 1)
-    recall = tp / max(int(true.sum()), 1)
-    f1 = 2 * precision * recall / max(precision + recall, 1e-12)
-    return {"f1": round(f1, 3), "precision": round(precision, 3), "recall": round(recall, 3),
-            "brier": round(float(np.mean((prob - true) ** 2)), 4)}
+    from physdyn_ros.learn.evaluate import topple_scores
+
+    s = topple_scores(prob >= 0.5, truth > 0.5)  # None where undefined: 0 here
+    return {**{k: round(s[k] or 0.0, 3) for k in ("f1", "precision", "recall")},
+            "brier": round(float(np.mean((prob - (truth > 0.5)) ** 2)), 4)}
 
 
 def exact_topples(sims, index: np.ndarray, runs: int, horizon: int, noise: float = 0.01) -> np.ndarray:

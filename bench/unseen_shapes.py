@@ -68,6 +68,7 @@ def fusion_scores(ckpt: str, data: str, categories: list[str] | None, max_sequen
     import torch
 
     from physdyn_ros.learn.checkpoint import load_model
+    from physdyn_ros.learn.evaluate import topple_scores
     from physdyn_ros.learn.windows import load_sims
     from physdyn_ros.topple_fusion import FusionWeights, fusion_path
     from physdyn_ros.topple_fusion_fit import model_and_truth, push_verdicts
@@ -83,12 +84,10 @@ def fusion_scores(ckpt: str, data: str, categories: list[str] | None, max_sequen
         index = np.linspace(0, len(sims) - 1, max_sequences).astype(np.int64)
     p_model, truth = model_and_truth(model, sims, index)
     p = weights.fuse(p_model, push_verdicts(sims, index))
-    pred, true = p >= 0.5, truth > 0.5
-    tp = int(np.sum(pred & true))
+    s = topple_scores(p >= 0.5, truth > 0.5)
     return {"pos_median": None, "pos_p90": None, "rot_median": None, "rot_p90": None,
-            "f1": round(2 * tp / max(int(pred.sum()) + int(true.sum()), 1), 4),
-            "precision": round(tp / max(int(pred.sum()), 1), 4), "recall": round(tp / max(int(true.sum()), 1), 4),
-            "brier": round(float(np.mean((p - true) ** 2)), 4)}
+            **{k: round(s[k] or 0.0, 4) for k in ("f1", "precision", "recall")},
+            "brier": round(float(np.mean((p - (truth > 0.5)) ** 2)), 4)}
 
 
 def com_errors(ckpt: str, data: str, categories: list[str], max_sequences: int) -> dict:

@@ -221,9 +221,3 @@ class ToppleFusion:
 
     def close(self) -> None:
         self.physics.close()
-
-    def probability(self, p_model: float, points: np.ndarray, reference: np.ndarray, lin_vel: np.ndarray,
-                    ang_vel: np.ndarray) -> float:
-        """The fused probability of one push (SolidPhysics.toppled's arguments)."""
-        toppled = self.physics.toppled(points, reference, lin_vel, ang_vel)
-        return float(self.weights.fuse(np.array([p_model]), toppled[None])[0])

@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from .learn.checkpoint import load_model
+    from .learn.evaluate import topple_scores
     from .learn.windows import load_sims
     from .resources import DEFAULT_MODEL
 
@@ -99,10 +100,8 @@ def run(args: argparse.Namespace) -> int:
                             fitted_on=f"{Path(args.data).name} ({', '.join(args.splits)})", pushes=len(index))
     fused = weights.fuse(p_model, toppled)
     for name, p in (("model", p_model), ("fusion (in-sample)", fused)):
-        pred, true = p >= 0.5, truth > 0.5
-        tp = int(np.sum(pred & true))
-        f1 = 2 * tp / max(int(pred.sum()) + int(true.sum()), 1)
-        print(f"{name:<20} F1 {f1:.3f}  Brier {float(np.mean((p - true) ** 2)):.4f}")
+        f1 = topple_scores(p >= 0.5, truth > 0.5)["f1"] or 0.0
+        print(f"{name:<20} F1 {f1:.3f}  Brier {float(np.mean((p - (truth > 0.5)) ** 2)):.4f}")
     out = args.out or fusion_path(ckpt)
     weights.save(out)
     print(f"{len(index)} pushes ({int((truth > 0.5).sum())} toppled): weights {np.round(coef, 3).tolist()}, bias "
