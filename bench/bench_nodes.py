@@ -15,6 +15,7 @@
 """Latency and throughput of the perception and predictor nodes, as separate processes over DDS (loopback).
 
     .venv/bin/python bench/bench_nodes.py [--model PATH] [--samples 100] [--clients 8] [--domain 42]
+        [--predictor-param NAME:=VALUE ...]
 
 The bench plays the world: it starts perception_node and predictor_node with config/suite.yaml (as `physdyn
 up --nodes perception,predictor` does) and publishes the clouds, object states and twists itself.
@@ -201,7 +202,12 @@ def main() -> int:
     parser.add_argument("--dds-cloud-points", type=int, default=20_000,
                         help="cloud size sent over DDS (100k-point clouds, 1.6 MB, were lost on best-effort loopback)")
     parser.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: a random private one)")
+    parser.add_argument("--predictor-param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="a predictor parameter over config/suite.yaml's (repeatable), e.g. rest_spread:=false")
     args = parser.parse_args()
+    for item in args.predictor_param:
+        if ":=" not in item:
+            parser.error(f"--predictor-param {item!r}: expected NAME:=VALUE")
 
     os.environ["ROS_DOMAIN_ID"] = str(args.domain if args.domain is not None else np.random.randint(101, 200))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -243,8 +249,9 @@ def main() -> int:
         local.append(time.perf_counter() - t)
 
     overrides = {"perception": [f"model_path:={model}"],
-                 "predictor": [f"model_path:={model}", f"horizon:={HORIZON}", "max_feature_age:=0.0"]}
-    rclpy.init()
+                 "predictor": [f"model_path:={model}", f"horizon:={HORIZON}", "max_feature_age:=0.0",
+                               *args.predictor_param]}
+    rclpy.init(args=[])  # this process's own arguments are the bench's, not ROS's
     suite = Suite(nodes=["perception", "predictor"], overrides=overrides, log_dir=Path(tmp.name) / "logs")
     bench = None
     try:
