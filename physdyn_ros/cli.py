@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit-topple": ("physdyn_ros.learn.topple_fit", "fit a checkpoint's whole-push topple head (frozen dynamics)"),
     "fit-topple-fusion": ("physdyn_ros.topple_fusion_fit", "fit a checkpoint's fusion of its topple head and "
                           "physics on the whole cloud's solid"),
+    "fit-spread": ("physdyn_ros.spread_fit", "calibrate a checkpoint's rest-pose spread (radii of stated coverage)"),
     "evaluate": ("physdyn_ros.learn.evaluate", "evaluate a checkpoint and the baselines on a test split"),
     "predict": ("physdyn_ros.predict_cli", "roll out a checkpoint for one cloud and initial velocity"),
     "plan": ("physdyn_ros.planning.cli", "plan a push to a goal pose with the model; execute it in pybullet"),

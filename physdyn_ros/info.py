@@ -74,9 +74,19 @@ def run(args: argparse.Namespace) -> int:
             info["topple_fusion"] = "none"
         except ValueError as exc:
             info["topple_fusion"] = f"unreadable ({exc})"
+        from physdyn_ros.spread import SpreadCalibration, spread_path
+
+        try:  # the Predictor's rollout(spread=True) and the nodes' rest_spread read it
+            cal = SpreadCalibration.load(spread_path(DEFAULT_MODEL))
+            info["spread_calibration"] = (f"{spread_path(DEFAULT_MODEL).name}, for {cal.model_id}, fitted on "
+                                          f"{cal.pushes} upright pushes of {cal.fitted_on}")
+        except FileNotFoundError:
+            info["spread_calibration"] = "none"
+        except ValueError as exc:
+            info["spread_calibration"] = f"unreadable ({exc})"
     if args.json:
         print(json.dumps(info, indent=2))
     else:
         for k, v in info.items():
-            print(f"{k:>14}: {v}")
+            print(f"{k:>18}: {v}")
     return 0

@@ -43,6 +43,7 @@ from .conventions import DT
 from .learn.frames import c_to_world, canonicalize_cloud, compose_rotations, world_to_c
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
 from .learn.support import DESCRIPTOR_POINTS, support_descriptors
+from .spread import DEFAULT_LEVEL, RestSpread, SpreadCalibration, perturbed_twists, sensitivity, spread_path, yaw_of
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -80,6 +81,7 @@ class Trajectory:
     # how far the shape and push lie from the training data (learn/topple.py): > 1 beyond 99.5 % of the training
     # inputs, a prediction to treat with caution; NaN for models without a topple head
     novelty: float = float("nan")
+    spread: Optional[RestSpread] = None  # how far the true rest pose may lie (rollout(spread=True))
 
     @property
     def horizon(self) -> int:
@@ -235,6 +237,10 @@ class Predictor:
         # whole-push topple probabilities of `rollout` fused with physics on the whole cloud's solid (None: the
         # model's own); see load(topple_fusion=...) and physdyn_ros.topple_fusion
         self.topple_fusion: Optional[Any] = None
+        # turns a push's sensitivity into calibrated radii (rollout(spread=True)); None, with the reason in
+        # spread_problem, for a checkpoint without a calibration of its own beside it
+        self.spread_calibration: Optional[SpreadCalibration] = None
+        self.spread_problem = "no spread calibration"
 
     def batch_precision(self, rows: int) -> str:
         """"fp32" or "bf16": the precision of a roll-out of `rows` trajectories (1: always the float32 kernel)."""
@@ -298,8 +304,23 @@ class Predictor:
             if pred._topple is None:
                 raise ValueError(f"{path} has no whole-push topple head to fuse with physics")
             pred.topple_fusion = ToppleFusion.for_checkpoint(path, pred.model_id, friction)
+        pred._load_spread(spread_path(path))
         pred._warm_up()
         return pred
+
+    def _load_spread(self, path: Path) -> None:
+        try:
+            cal = SpreadCalibration.load(path)
+        except FileNotFoundError:
+            self.spread_problem = f"no spread calibration at {path} (fit one: physdyn fit-spread)"
+            return
+        except ValueError as exc:
+            self.spread_problem = str(exc)
+            return
+        if cal.model_id != self.model_id:
+            self.spread_problem = f"{path} was fitted for model {cal.model_id}, not {self.model_id}"
+            return
+        self.spread_calibration = cal
 
     def _warm_up(self) -> None:
         """Run the compiled roll-out a few times: TorchScript optimises a function on its first calls (the model
@@ -396,7 +417,7 @@ class Predictor:
     # ---------------------------------------------------------------------------------------------- roll-out
     def rollout(self, shape: Union[ShapeCode, np.ndarray], lin_vel: Any, ang_vel: Any, horizon: int = 60,
                 position: Any = None, orientation: Any = None,
-                observed: Union[Observed, Mapping[str, Any], None] = None) -> Trajectory:
+                observed: Union[Observed, Mapping[str, Any], None] = None, spread: bool = False) -> Trajectory:
         """Predict the motion after the object has velocities lin_vel / ang_vel at frame 0.
 
         Args:
@@ -406,6 +427,8 @@ class Predictor:
             position: (3,) start centre of mass (default: the code's centroid).
             orientation: (4,) start orientation x, y, z, w (default: identity, the pose the cloud was seen in).
             observed: optional states of frames 1..K (an Observed, or a mapping of its fields), kept as given.
+            spread: also roll out the push weaker and stronger (physdyn_ros.spread, about 2 ms) for the Trajectory's
+                spread; its radii are NaN where the checkpoint has no spread calibration (spread_problem says why).
 
         Returns:
             A Trajectory of horizon + 1 states (frame 0 the given start) with topple probabilities and novelty;
@@ -428,9 +451,25 @@ class Predictor:
                 fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
             except ValueError:  # a cloud that encloses no solid (flat, a line): the model's probability stands
                 fuse = None
-        batch = self._run(code.feature[None], np.array([code.heading]), v0[None], w0[None], p0[None], q0[None],
-                          horizon, obs, fuse=fuse)
-        return batch[0]
+        def run(v: np.ndarray, w: np.ndarray, f: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> Trajectory:
+            return self._run(code.feature[None], np.array([code.heading]), v[None], w[None], p0[None], q0[None],
+                             horizon, obs, fuse=f)[0]
+
+        traj = run(v0, w0, fuse)
+        if not spread:
+            return traj
+        lin, ang = perturbed_twists(v0, w0)
+        n = len(lin)
+        batch = self._run(np.repeat(code.feature[None], n, 0), np.full(n, code.heading), lin, ang,
+                          np.repeat(p0[None], n, 0), np.repeat(q0[None], n, 0), horizon, obs, rowwise=True)
+        others = [batch[i] for i in range(n)]
+        sens = sensitivity(traj.positions[-1, :2], float(yaw_of(traj.orientations[-1])),
+                           np.array([t.positions[-1, :2] for t in others]),
+                           yaw_of(np.array([t.orientations[-1] for t in others])))
+        cal = self.spread_calibration
+        radius, turn = cal.radii(sens, DEFAULT_LEVEL) if cal is not None else (math.nan, math.nan)
+        topple = float(np.std([traj.topple_probability] + [t.topple_probability for t in others]))
+        return replace(traj, spread=RestSpread(DEFAULT_LEVEL, radius, turn, topple, sens))
 
     def rollout_batch(self, shapes: Union[ShapeCode, np.ndarray, Sequence[Union[ShapeCode, np.ndarray]]],
                       lin_vels: Any, ang_vels: Any, horizon: int = 60, positions: Any = None,
@@ -507,9 +546,11 @@ class Predictor:
 
     def _run(self, feats: np.ndarray, headings: np.ndarray, v0: np.ndarray, w0: np.ndarray, p0: np.ndarray,
              q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]],
-             head_timing: bool = True, fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> TrajectoryBatch:
+             head_timing: bool = True, fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+             rowwise: bool = False) -> TrajectoryBatch:
         """Roll out in frame C, then back to the table frame (all vectorised over the batch, numpy only: at batch 1
-        the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead)."""
+        the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead; `rowwise` runs each
+        row of a small batch through it)."""
         wanted = horizon
         if self._topple is not None and head_timing:  # the head's probability is for the whole push: time it over
             horizon = max(horizon, HEAD_TIMING_STEPS)  # the full run
@@ -523,7 +564,7 @@ class Predictor:
         vw = _yaw_rotate(np.stack([v0, w0], 1), -headings)  # world_to_c of both start velocities at once
         raw, xs, scales = self._model.rollout_arrays(np.asarray(feats[:, :self._dynamics_dim], np.float32), vw[:, 0],
                                                      vw[:, 1], horizon,
-                                                     obs_v, obs_w, self.precision)
+                                                     obs_v, obs_w, self.precision, rowwise)
         # physical units as model.rollout computes them (float32 products), then float64 in the table frame:
         # per step d_pos, d_rot, vel, angvel as four 3-vectors, turned by the heading at once
         phys = np.concatenate([raw[..., 6:12] * scales["out"][6:12], xs[:, 1:] * scales["in"]], -1)

@@ -44,6 +44,25 @@ def test_a_prediction_recorded_before_novelty_existed_still_decodes():
     # a current message reads with the current definition, novelty included
     now = T.typestore().types[msgtype](header=header, object_id="box", model_id="m",
                                        time_step=msg.time_step, steps_in=0, states=[s], topple_probability=0.5,
-                                       novelty=0.3)
+                                       novelty=0.3, rest_position_spread=0.02, rest_yaw_spread=0.1,
+                                       topple_probability_spread=0.05)
     back = T.deserialize(bytes(T.serialize(now, msgtype)), msgtype)
     assert math.isclose(back.novelty, 0.3, rel_tol=1e-6)
+    assert math.isclose(back.rest_position_spread, 0.02, rel_tol=1e-6)
+
+
+def test_a_prediction_with_novelty_but_no_spread_keeps_its_novelty():
+    """A prediction recorded after `novelty` and before the spread fields reads with that generation's
+    definition: its novelty survives (the oldest definition would read it too, dropping the novelty)."""
+    msgtype = "physdyn_ros/msg/PredictedTrajectory"
+    mid = T._legacy_store(msgtype, 1)
+    fields = [name for name, _ in mid.fielddefs[msgtype][1]]
+    assert "novelty" in fields and "rest_position_spread" not in fields
+    types = mid.types
+    header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=3, nanosec=0),
+                                          frame_id="world")
+    msg = types[msgtype](header=header, object_id="can", model_id="m",
+                         time_step=types["builtin_interfaces/msg/Duration"](sec=0, nanosec=66_666_667), steps_in=0,
+                         states=[], topple_probability=0.25, novelty=1.5)
+    out = T.deserialize(bytes(mid.serialize_cdr(msg, msgtype)), msgtype)
+    assert out.object_id == "can" and math.isclose(out.novelty, 1.5)

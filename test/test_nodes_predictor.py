@@ -469,3 +469,33 @@ def test_topple_fusion_in_the_service(rclpy_init, predictor, tiny_model):
                           "-p", f"model_path:={tiny_model}", "-p", "topple_fusion:=true"],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 1 and "no whole-push topple head" in run.stderr, run.stderr[-2000:]
+
+
+def test_the_service_carries_the_calibrated_spread(rclpy_init, predictor):
+    """rest_spread (default true): predict_trajectory's trajectory carries the Predictor's calibrated spread for
+    the same push; rest_spread false leaves the three fields NaN. A model without a spread calibration of its own
+    (the tiny one) still carries the topple spread, the radii NaN."""
+    from physdyn_ros.predictor import Predictor
+    from physdyn_ros.resources import DEFAULT_MODEL
+
+    push = dict(position=(0.2, 0.1, 0.04), v=(0.5, 0.0, 0.0), w=(0.0, 0.0, 0.5))
+    expected = Predictor.load(DEFAULT_MODEL, threads=1).rollout(
+        CLOUD.astype(np.float64), push["v"], push["w"], 60, push["position"], spread=True).spread
+    assert expected is not None and expected.position > 0 and expected.yaw > 0
+    for params, want in (({"model_path": str(DEFAULT_MODEL)}, expected),
+                         ({"model_path": str(DEFAULT_MODEL), "rest_spread": False}, None), ({}, "tiny")):
+        node = predictor(**params)
+        c = Client(rclpy_init)
+        with Spinner(node, c.node):
+            res = call(c.srv, request(cloud=xyz_to_cloud(CLOUD, "world"), horizon=60, **push))
+        assert res.success, res.message
+        t = res.trajectory
+        if want is None:
+            assert math.isnan(t.rest_position_spread) and math.isnan(t.topple_probability_spread)
+        elif want == "tiny":
+            assert math.isnan(t.rest_position_spread) and math.isnan(t.rest_yaw_spread)
+            assert math.isfinite(t.topple_probability_spread)
+        else:
+            assert t.rest_position_spread == pytest.approx(want.position, rel=1e-5)
+            assert t.rest_yaw_spread == pytest.approx(want.yaw, rel=1e-5)
+            assert t.topple_probability_spread == pytest.approx(want.topple, abs=1e-6)

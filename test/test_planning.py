@@ -176,6 +176,10 @@ def test_planner_runs_on_the_learned_model(tiny_predictor):
     replay = tiny_predictor.rollout(cloud, plan.lin_vel, plan.ang_vel, horizon=plan.horizon)
     np.testing.assert_allclose(replay.positions[-1], plan.final_position, atol=1e-3)  # float32, batched vs single
     assert plan.spread > 0  # the robustness check ran
+    # the chosen push's own spread (physdyn_ros.spread) rides on the plan's trajectory: plan_push's response
+    own = tiny_predictor.rollout(cloud, plan.lin_vel, plan.ang_vel, horizon=plan.horizon, spread=True).spread
+    assert plan.trajectory.spread is not None
+    np.testing.assert_allclose(plan.trajectory.spread.sensitivity, own.sensitivity, rtol=1e-3, atol=1e-6)
 
 
 def test_online_adapter_feeds_observed_steps(tiny_predictor):

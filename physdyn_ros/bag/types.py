@@ -122,25 +122,27 @@ def ensure_type(msgtype: str) -> str:
     return msgtype
 
 
-#: Fields appended to the suite's types since bags were first recorded: a message recorded before a field existed
-#: is read with the definition without it (the field is then absent from the decoded message).
-ADDED_FIELDS: dict[str, tuple[str, ...]] = {f"{PACKAGE}/msg/PredictedTrajectory": ("novelty",)}
-_legacy: dict[str, Typestore] = {}
+#: Fields appended to the suite's types since bags were first recorded, one tuple per addition, oldest first: a
+#: message recorded before an addition is read with the definition without it and the later ones (those fields
+#: are then absent from the decoded message).
+ADDED_FIELDS: dict[str, tuple[tuple[str, ...], ...]] = {f"{PACKAGE}/msg/PredictedTrajectory": (
+    ("novelty",), ("rest_position_spread", "rest_yaw_spread", "topple_probability_spread"))}
+_legacy: dict[tuple[str, int], Typestore] = {}
 
 
-def _legacy_store(msgtype: str) -> Typestore:
-    """A typestore whose msgtype lacks the fields added since (built once per type)."""
+def _legacy_store(msgtype: str, generation: int = 0) -> Typestore:
+    """A typestore whose msgtype lacks the fields of addition `generation` and the later ones (built once)."""
     with _lock:
-        if msgtype not in _legacy:
+        if (msgtype, generation) not in _legacy:
             store = get_typestore(Stores.ROS2_JAZZY)
             path = _find_msg(msgtype)
             assert path is not None
-            added = ADDED_FIELDS[msgtype]
+            added = {f for fields in ADDED_FIELDS[msgtype][generation:] for f in fields}
             lines = [ln for ln in path.read_text().splitlines()
                      if not (ln.split("#")[0].split() and ln.split("#")[0].split()[-1] in added)]
             _register_with_dependencies(store, get_types_from_msg("\n".join(lines) + "\n", msgtype), {msgtype})
-            _legacy[msgtype] = store
-        return _legacy[msgtype]
+            _legacy[(msgtype, generation)] = store
+        return _legacy[(msgtype, generation)]
 
 
 def deserialize(data: bytes | memoryview, msgtype: str):
@@ -151,7 +153,14 @@ def deserialize(data: bytes | memoryview, msgtype: str):
     except Exception:
         if msgtype not in ADDED_FIELDS:
             raise
-        return _legacy_store(msgtype).deserialize_cdr(data, msgtype)
+    # newest definition first: an older one would read a newer message's leading fields and drop the rest
+    for generation in reversed(range(len(ADDED_FIELDS[msgtype]))):
+        try:
+            return _legacy_store(msgtype, generation).deserialize_cdr(data, msgtype)
+        except Exception:
+            if generation == 0:
+                raise
+    raise AssertionError("unreachable")
 
 
 def serialize(msg, msgtype: str) -> bytes:

@@ -37,7 +37,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from ..predictor import ShapeCode, Trajectory
+from ..predictor import Predictor, ShapeCode, Trajectory
 from ..topple_fusion import FusionWeights, fusion_path
 from .body import BodyError, PushBody, body_from_box, body_from_cloud
 from .models import DynamicsModel
@@ -229,6 +229,10 @@ class PushPlanner:
             raise PlanningError(f"no feasible push: the best push considered spins the object at {spin:.1f} rad/s "
                                 f"(max_spin {cfg.max_spin:g}) or breaks another limit; try a nearer goal")
         traj = best.trajectory
+        if isinstance(self.model, Predictor):  # the chosen push's calibrated spread (~2 ms)
+            again = self.model.rollout(replace(search.code, points=None), best.lin_vel, best.ang_vel, search.horizon,
+                                       position=traj.positions[0], orientation=traj.orientations[0], spread=True)
+            traj = replace(traj, spread=again.spread)
         final = traj.positions[-1]
         final_yaw = float(wrap_angle(start.yaw + float(yaw_of(traj.orientations[-1]))))
         within = best.pos_err <= goal.position_tolerance and (goal.ignores_yaw or best.yaw_err <= goal.yaw_tolerance)

@@ -72,7 +72,8 @@ def refine(node: Any) -> None:
         try:
             observed = node.observed(obs)
             traj = node.predictor.rollout(node.shape_code(p.feature), p.lin_vel, p.ang_vel, horizon=node.horizon(),
-                                          position=p.position, orientation=p.orientation, observed=observed)
+                                          position=p.position, orientation=p.orientation, observed=observed,
+                                          spread=bool(node._param("rest_spread")))
         except Exception as exc:  # noqa: BLE001 - one bad refinement must not stop the others
             node._fail(f"refinement with {len(obs)} observed states failed: {exc}")
             continue

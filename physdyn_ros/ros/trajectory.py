@@ -92,10 +92,15 @@ def trajectory_to_msg(traj: TrajectoryLike, frame_id: str, stamp: Time, object_i
                                           angular=Vector3(x=r[10], y=r[11], z=r[12])),
                               toppled=top, topple_probability=r[13])
                   for r, s, ns_, top in zip(rows, sec.tolist(), nanosec.tolist(), toppled)]
+    spread = getattr(traj, "spread", None)
+    nan = math.nan
     return PredictedTrajectory(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
                                model_id=model_id, time_step=duration_from_sec(traj.dt), steps_in=int(steps_in),
                                states=states, topple_probability=float(prob.max()) if prob.size else 0.0,
-                               novelty=float(getattr(traj, "novelty", math.nan)))
+                               novelty=float(getattr(traj, "novelty", nan)),
+                               rest_position_spread=float(spread.position) if spread is not None else nan,
+                               rest_yaw_spread=float(spread.yaw) if spread is not None else nan,
+                               topple_probability_spread=float(spread.topple) if spread is not None else nan)
 
 
 _COS_TOPPLE = math.cos(TOPPLE_ANGLE)

@@ -1,0 +1,144 @@
+# Copyright 2026 physdyn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The prediction's spread (physdyn_ros.spread): perturbations, the conformal fit, the calibration file and the
+Predictor's radii."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from physdyn_ros import spread as S
+from physdyn_ros.predictor import Predictor
+from physdyn_ros.resources import DEFAULT_MODEL
+
+RNG = np.random.default_rng(11)
+BOX = RNG.uniform(-1, 1, (1200, 3)) * (0.05, 0.03, 0.04) + (0.2, 0.1, 0.04)
+
+
+@pytest.fixture(scope="module")
+def shipped() -> Predictor:
+    return Predictor.load(DEFAULT_MODEL, threads=1)
+
+
+def test_perturbed_twists_scale_the_impulse():
+    lin, ang = S.perturbed_twists(np.array([0.4, 0.1, 0.0]), np.array([0.0, 0.0, 2.0]))
+    assert lin.shape == ang.shape == (len(S.SPEEDS), 3)
+    np.testing.assert_allclose(lin, [[0.36, 0.09, 0.0], [0.44, 0.11, 0.0]])
+    assert ang[:, 2] == pytest.approx([1.8, 2.2])  # the same contact: the spin scales with the speed
+
+
+def test_the_perturbed_rows_are_their_own_batch_1_roll_outs(shipped):
+    """The spread's perturbed pushes run row by row through the batch-1 kernel (rowwise): each equals
+    `rollout` of that push: the motion exactly, the topple head's float64 products within rounding; observed
+    states included."""
+    code = shipped.encode(BOX)
+    obs = {"positions": [[0.21, 0.1, 0.04]], "orientations": [[0, 0, 0, 1]], "lin_vels": [[0.25, 0, 0]],
+           "ang_vels": [[0, 0, 0.4]]}
+    lin, ang = S.perturbed_twists(np.array([0.3, 0.05, 0.0]), np.array([0.0, 0.0, 0.5]))
+    for observed in (None, obs):
+        checked = shipped._check_observed(observed, 40)
+        batch = shipped._run(np.repeat(code.feature[None], 2, 0), np.full(2, code.heading), lin, ang,
+                             np.repeat(code.centroid[None], 2, 0), np.tile([0.0, 0, 0, 1], (2, 1)), 40, checked,
+                             rowwise=True)
+        for i in range(2):
+            one = shipped.rollout(code, lin[i], ang[i], 40, observed=observed)
+            np.testing.assert_array_equal(batch.positions[i], one.positions)
+            np.testing.assert_allclose(batch.topple_prob[i], one.topple_prob, rtol=1e-12, atol=1e-15)
+
+
+def test_the_conformal_factors_cover_fresh_pushes_at_their_level():
+    """Errors proportional to the sensitivity with a heavy-tailed factor: the fitted radii hold the stated share of
+    pushes drawn afresh (a factor off by 20 % misses the 0.9 level by far more than the tolerance)."""
+    def draw(n):
+        sens = np.column_stack([RNG.uniform(0.001, 0.05, n), RNG.uniform(0.01, 0.3, n)])
+        return sens, sens * np.abs(RNG.standard_t(3, (n, 2)))
+
+    sens, err = draw(4000)
+    pos, yaw = S.fit_calibration(sens, err)
+    cal = S.SpreadCalibration("m", S.LEVELS, pos, yaw)
+    sens2, err2 = draw(20000)
+    for level in S.LEVELS:
+        radii = np.array([cal.radii(tuple(s), level) for s in sens2])
+        assert np.mean(err2 <= radii, axis=0) == pytest.approx([level, level], abs=0.015)
+    assert list(pos) == sorted(pos)  # wider radii for higher levels
+    with pytest.raises(ValueError, match="level 0.7 not calibrated"):
+        cal.radii((0.01, 0.1), 0.7)
+    with pytest.raises(ValueError, match="at least 20 pushes"):
+        S.fit_calibration(sens[:5], err[:5])
+    with pytest.raises(ValueError, match=r"both be \(n, 2\)"):
+        S.fit_calibration(sens[:, 0], err[:, 0])
+
+
+def test_a_push_that_barely_moves_keeps_the_floor():
+    cal = S.SpreadCalibration("m", (0.9,), (2.0,), (3.0,))
+    assert cal.radii((0.0, 0.0)) == pytest.approx((2.0 * S.FLOORS[0], 3.0 * S.FLOORS[1]))
+
+
+def test_the_calibration_file_round_trips_and_bad_files_are_named(tmp_path):
+    cal = S.SpreadCalibration("abc", S.LEVELS, (0.4, 1.0, 1.7, 2.9), (0.9, 2.9, 4.8, 11.0), fitted_on="x", pushes=9)
+    path = tmp_path / "m.spread.json"
+    cal.save(path)
+    assert S.SpreadCalibration.load(path) == cal
+    assert [p.name for p in tmp_path.iterdir()] == ["m.spread.json"]  # no temporary file left behind
+    raw = json.loads(path.read_text())
+    for key, value, match in (("position_factors", [1.0, -2.0, 3.0, 4.0], "positive finite factor"),
+                              ("levels", [0.5, 0.8], "one positive finite factor per level"),
+                              ("model_id", 3, "model_id must be a string")):
+        path.write_text(json.dumps({**raw, key: value}))
+        with pytest.raises(ValueError, match=match):
+            S.SpreadCalibration.load(path)
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match="not a spread calibration"):
+        S.SpreadCalibration.load(path)
+    with pytest.raises(FileNotFoundError):
+        S.SpreadCalibration.load(tmp_path / "none.json")
+
+
+def test_the_shipped_model_has_its_calibration(shipped):
+    cal = shipped.spread_calibration
+    assert cal is not None, shipped.spread_problem
+    assert cal.model_id == shipped.model_id and cal.pushes >= 500
+
+
+def test_the_spread_leaves_the_prediction_alone_and_grows_with_the_push(shipped):
+    """The same trajectory with and without the spread; a fast push's rest pose is less certain than a slow
+    one's; the radii are the calibration's factor times the floored sensitivity."""
+    code = shipped.encode(BOX)
+    plain = shipped.rollout(code, (0.3, 0.0, 0.0), (0.0, 0.0, 0.5), 60)
+    with_spread = shipped.rollout(code, (0.3, 0.0, 0.0), (0.0, 0.0, 0.5), 60, spread=True)
+    assert plain.spread is None
+    np.testing.assert_array_equal(plain.positions, with_spread.positions)
+    np.testing.assert_array_equal(plain.topple_prob, with_spread.topple_prob)
+    s = with_spread.spread
+    assert s.level == S.DEFAULT_LEVEL and 0 <= s.topple <= 0.5
+    assert (s.position, s.yaw) == pytest.approx(shipped.spread_calibration.radii(s.sensitivity))
+    fast = shipped.rollout(code, (1.0, 0.0, 0.0), (0.0, 0.0, 0.5), 60, spread=True).spread
+    assert fast.position > 2 * s.position
+
+
+def test_a_calibration_of_another_model_is_not_used(shipped, tmp_path):
+    """The radii of a checkpoint whose calibration names another model are NaN, and spread_problem says why."""
+    import shutil
+
+    ckpt = tmp_path / "copy.pt"
+    shutil.copy(DEFAULT_MODEL, ckpt)
+    replace(shipped.spread_calibration, model_id="other").save(S.spread_path(ckpt))
+    pred = Predictor.load(ckpt, threads=1)
+    assert pred.spread_calibration is None and "fitted for model other" in pred.spread_problem
+    s = pred.rollout(pred.encode(BOX), (0.3, 0.0, 0.0), (0.0, 0.0, 0.0), 30, spread=True).spread
+    assert math.isnan(s.position) and math.isnan(s.yaw) and math.isfinite(s.topple)
