@@ -15,12 +15,13 @@
 """Reliability of the predicted spread (physdyn_ros.spread) on pushes the calibration never saw.
 
     .venv/bin/python bench/spread_reliability.py --data data/heldout_families [--checkpoint CKPT]
-        [--splits train val test] [--max-sequences 1500]
+        [--splits train val test] [--max-sequences 1500] [--steps-in K]
 
 Each push (physdyn_ros.spread_fit.measure: whole cloud, true start state, 60 steps) is predicted with its
 spread. For each calibrated level: the share of upright pushes whose true rest position (yaw) lies within the
 predicted radius, and the median radius; at the default level also by third of the push's sensitivity (a spread
-that only covers on average would miss the sensitive third). For the topple probability: its reliability bins,
+that only covers on average would miss the sensitive third); `--steps-in K` feeds the K true states after the push
+first, as the predictor node's refinements do. For the topple probability: its reliability bins,
 and the decisions' error rate and Brier score by topple spread. The last line is one JSON object
 {pushes, upright, levels: {level: {position_coverage, yaw_coverage, position_radius_median_cm,
 yaw_radius_median_deg}}, position_coverage_by_third, topple_spread_bins: [{spread, n, error_rate, brier}],
@@ -52,6 +53,7 @@ def main() -> int:
     ap.add_argument("--checkpoint", default=None, help="default: the shipped model")
     ap.add_argument("--splits", nargs="+", default=["train", "val", "test"])
     ap.add_argument("--max-sequences", type=int, default=1500)
+    ap.add_argument("--steps-in", type=int, default=0, help="true states after the push fed first (refinements)")
     args = ap.parse_args()
 
     pred = Predictor.load(args.checkpoint, threads=1)
@@ -60,10 +62,11 @@ def main() -> int:
         raise SystemExit(f"spread_reliability: {pred.spread_problem}")
     sims = load_sims(args.data, list(args.splits))
     index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
-    m = measure(pred, sims, index)
+    m = measure(pred, sims, index, observed=args.steps_in)
     up = ~m["toppled"]
     sens, err = m["sensitivity"][up], m["error"][up]
-    print(f"{len(index)} pushes of {args.data} ({int(up.sum())} upright), calibration fitted on {cal.fitted_on}")
+    print(f"{len(index)} pushes of {args.data} ({int(up.sum())} upright), {args.steps_in} states in; calibration "
+          f"fitted on {cal.fitted_on}")
     print(f"{'level':>6} {'position covered':>17} {'median radius':>14} {'yaw covered':>12} {'median radius':>14}")
     levels = {}
     for level in cal.levels:

@@ -43,7 +43,8 @@ from .conventions import DT
 from .learn.frames import c_to_world, canonicalize_cloud, compose_rotations, world_to_c
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
 from .learn.support import DESCRIPTOR_POINTS, support_descriptors
-from .spread import DEFAULT_LEVEL, RestSpread, SpreadCalibration, perturbed_twists, sensitivity, spread_path, yaw_of
+from .spread import (DEFAULT_LEVEL, SPEEDS, RestSpread, SpreadCalibration, perturbed_twists, sensitivity, spread_path,
+                     yaw_of)
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -451,18 +452,22 @@ class Predictor:
                 fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
             except ValueError:  # a cloud that encloses no solid (flat, a line): the model's probability stands
                 fuse = None
-        def run(v: np.ndarray, w: np.ndarray, f: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> Trajectory:
+        def run(v: np.ndarray, w: np.ndarray, seen: Optional[dict[str, np.ndarray]],
+                f: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> Trajectory:
             return self._run(code.feature[None], np.array([code.heading]), v[None], w[None], p0[None], q0[None],
-                             horizon, obs, fuse=f)[0]
+                             horizon, seen, fuse=f)[0]
 
-        traj = run(v0, w0, fuse)
+        traj = run(v0, w0, obs, fuse)
         if not spread:
             return traj
         lin, ang = perturbed_twists(v0, w0)
-        n = len(lin)
-        batch = self._run(np.repeat(code.feature[None], n, 0), np.full(n, code.heading), lin, ang,
-                          np.repeat(p0[None], n, 0), np.repeat(q0[None], n, 0), horizon, obs, rowwise=True)
-        others = [batch[i] for i in range(n)]
+        others = []
+        for k, (v, w) in enumerate(zip(lin, ang)):
+            # observed states hand the push over to the model at their last one: perturb them all alike, or the
+            # observation would wash the perturbation out (and the spread out with it)
+            scaled = None if obs is None else {**obs, "lin_vels": obs["lin_vels"] * SPEEDS[k],
+                                               "ang_vels": obs["ang_vels"] * SPEEDS[k]}
+            others.append(run(v, w, scaled))
         sens = sensitivity(traj.positions[-1, :2], float(yaw_of(traj.orientations[-1])),
                            np.array([t.positions[-1, :2] for t in others]),
                            yaw_of(np.array([t.orientations[-1] for t in others])))
@@ -546,11 +551,9 @@ class Predictor:
 
     def _run(self, feats: np.ndarray, headings: np.ndarray, v0: np.ndarray, w0: np.ndarray, p0: np.ndarray,
              q0: np.ndarray, horizon: int, obs: Optional[dict[str, np.ndarray]],
-             head_timing: bool = True, fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-             rowwise: bool = False) -> TrajectoryBatch:
+             head_timing: bool = True, fuse: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> TrajectoryBatch:
         """Roll out in frame C, then back to the table frame (all vectorised over the batch, numpy only: at batch 1
-        the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead; `rowwise` runs each
-        row of a small batch through it)."""
+        the model runs a numpy kernel too, so a roll-out never pays torch's per-call overhead)."""
         wanted = horizon
         if self._topple is not None and head_timing:  # the head's probability is for the whole push: time it over
             horizon = max(horizon, HEAD_TIMING_STEPS)  # the full run
@@ -564,7 +567,7 @@ class Predictor:
         vw = _yaw_rotate(np.stack([v0, w0], 1), -headings)  # world_to_c of both start velocities at once
         raw, xs, scales = self._model.rollout_arrays(np.asarray(feats[:, :self._dynamics_dim], np.float32), vw[:, 0],
                                                      vw[:, 1], horizon,
-                                                     obs_v, obs_w, self.precision, rowwise)
+                                                     obs_v, obs_w, self.precision)
         # physical units as model.rollout computes them (float32 products), then float64 in the table frame:
         # per step d_pos, d_rot, vel, angvel as four 3-vectors, turned by the heading at once
         phys = np.concatenate([raw[..., 6:12] * scales["out"][6:12], xs[:, 1:] * scales["in"]], -1)

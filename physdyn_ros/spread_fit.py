@@ -38,8 +38,10 @@ __all__ = ["HORIZON", "measure", "add_arguments", "run"]
 HORIZON = 60  # steps: the rest pose `physdyn evaluate` scores
 
 
-def measure(predictor: Any, sims: Any, index: np.ndarray, horizon: int = HORIZON) -> dict[str, np.ndarray]:
-    """Per push `index` of a dataset: the prediction's spread and its true errors.
+def measure(predictor: Any, sims: Any, index: np.ndarray, horizon: int = HORIZON, observed: int = 0
+            ) -> dict[str, np.ndarray]:
+    """Per push `index` of a dataset: the prediction's spread and its true errors; `observed` true states after
+    the push (frames 1..observed) fed first, as a refinement does.
 
     Returns arrays: sensitivity (n, 2) m / rad; error (n, 2) rest position (x-y) and yaw errors, m / rad;
     radius (n, 2) the calibrated radii at the default level (NaN without a calibration); topple_probability,
@@ -58,8 +60,13 @@ def measure(predictor: Any, sims: Any, index: np.ndarray, horizon: int = HORIZON
         q0 = sims.quat[i, 0].astype(np.float64)
         p0 = sims.pos[i, 0].astype(np.float64)
         cloud = quat_rotate(np.broadcast_to(q0, pts.shape[:1] + (4,)), pts) + p0
+        seen = None
+        if observed:  # the true states, their orientations relative to the start (the cloud's own pose)
+            rel = Rotation.from_quat(sims.quat[i, 1:observed + 1]) * Rotation.from_quat(q0).inv()
+            seen = {"positions": sims.pos[i, 1:observed + 1], "orientations": rel.as_quat(),
+                    "lin_vels": sims.lin_vel[i, 1:observed + 1], "ang_vels": sims.ang_vel[i, 1:observed + 1]}
         traj = predictor.rollout(predictor.encode(cloud), sims.lin_vel[i, 0], sims.ang_vel[i, 0], horizon,
-                                 position=p0, spread=True)
+                                 position=p0, observed=seen, spread=True)
         turn = Rotation.from_quat(sims.quat[i, horizon]) * Rotation.from_quat(q0).inv()  # the true yaw change
         yaw_error = np.angle(np.exp(1j * (yaw_of(traj.orientations[-1]) - yaw_of(turn.as_quat()))))
         out["sensitivity"].append(traj.spread.sensitivity)

@@ -386,8 +386,7 @@ class DynamicsModel(nn.Module):
 
     def rollout_arrays(self, feature: np.ndarray, vel0: np.ndarray, angvel0: np.ndarray, steps: int,
                        obs_vel: Optional[np.ndarray] = None, obs_angvel: Optional[np.ndarray] = None,
-                       precision: str = "fp32", rowwise: bool = False
-                       ) -> Tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+                       precision: str = "fp32") -> Tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """rollout_raw for numpy arrays, without autograd: the Predictor's entry point. A batch of one on the CPU
         never touches torch (the latency path: the prior's constants in float32 numpy, then numpy_rollout).
 
@@ -397,8 +396,6 @@ class DynamicsModel(nn.Module):
             steps: steps to roll out.
             obs_vel, obs_angvel: optional (B, K, 3) observed states of frames 1..K (as rollout_raw).
             precision: of batches of more than one (rollout_raw); batch 1 runs the float32 numpy kernel.
-            rowwise: run each row through the batch-1 kernel (a few rows cost less so than one torch batch;
-                each row's outputs are then exactly its batch-1 roll-out's).
 
         Returns:
             Raw outputs (B, steps, 13) and normalised inputs used (B, steps + 1, 6) as float32 arrays, and the
@@ -408,13 +405,24 @@ class DynamicsModel(nn.Module):
             fast = self._fast()
             if self.cfg.cell == "lstm":
                 kernel = self._kernel(fast)
-                if (len(feature) == 1 or rowwise) and "np_w0" in kernel:  # (numpy weights: float32 CPU models)
-                    rows = [self._rollout_one(kernel, feature[i:i + 1], vel0[i], angvel0[i], steps,
-                                              None if obs_vel is None else obs_vel[i],
-                                              None if obs_angvel is None else obs_angvel[i])
-                            for i in range(len(feature))]
-                    return (np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows]),
-                            {"in": kernel["np_in"], "out": kernel["np_out"]})
+                if len(feature) == 1 and "np_w0" in kernel:  # (numpy weights exist for float32 CPU models)
+                    scale_in = kernel["np_in"]
+                    x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
+                    if obs_vel is None:
+                        x_obs = np.zeros((0, 6), np.float32)
+                    else:
+                        assert obs_angvel is not None, "obs_vel and obs_angvel go together"
+                        x_obs = (np.concatenate([obs_vel[0], obs_angvel[0]], -1).astype(np.float32) / scale_in)[:steps]
+                    prior = None
+                    if self.cfg.prior != "none":  # _prior_decel in float32 numpy (torch's dispatch costs more)
+                        radius = np.maximum(np.asarray(feature, np.float32)[:, self.learned_dim] * kernel["np_cloud"],
+                                            np.float32(MIN_RADIUS))
+                        decel = np.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
+                        coupling = np.full_like(radius, float(self.cfg.prior == "coupled"))
+                        prior = np.stack([decel, decel / radius, coupling], -1)
+                    raw_np, xs_np = numpy_rollout(kernel, np.asarray(feature, np.float32), x0[0], x_obs, int(steps),
+                                                  prior)
+                    return raw_np[None], xs_np[None], {"in": scale_in, "out": kernel["np_out"]}
             device = fast["in"].device
 
             def tensor(a: Any) -> Any:  # None (no observed states) stays None
@@ -424,26 +432,6 @@ class DynamicsModel(nn.Module):
                                        tensor(obs_angvel), fast, precision)
             scales = {"in": fast["in"].float().cpu().numpy(), "out": fast["out"].float().cpu().numpy()}
             return raw.float().cpu().numpy(), xs.float().cpu().numpy(), scales
-
-    def _rollout_one(self, kernel: dict[str, Any], feature: np.ndarray, vel0: np.ndarray, angvel0: np.ndarray,
-                     steps: int, obs_vel: Optional[np.ndarray], obs_angvel: Optional[np.ndarray]
-                     ) -> Tuple[np.ndarray, np.ndarray]:
-        """One row (feature (1, F), the rest of that row) through the batch-1 kernel: raw (steps, 13), xs."""
-        scale_in = kernel["np_in"]
-        x0 = np.concatenate([vel0, angvel0], -1).astype(np.float32) / scale_in
-        if obs_vel is None:
-            x_obs = np.zeros((0, 6), np.float32)
-        else:
-            assert obs_angvel is not None, "obs_vel and obs_angvel go together"
-            x_obs = (np.concatenate([obs_vel, obs_angvel], -1).astype(np.float32) / scale_in)[:steps]
-        prior = None
-        if self.cfg.prior != "none":  # _prior_decel in float32 numpy (torch's dispatch costs more)
-            radius = np.maximum(np.asarray(feature, np.float32)[:, self.learned_dim] * kernel["np_cloud"],
-                                np.float32(MIN_RADIUS))
-            decel = np.full_like(radius, float(self.cfg.prior_friction) * GRAVITY)
-            coupling = np.full_like(radius, float(self.cfg.prior == "coupled"))
-            prior = np.stack([decel, decel / radius, coupling], -1)
-        return numpy_rollout(kernel, np.asarray(feature, np.float32), x0, x_obs, int(steps), prior)
 
     def rollout(self, feature: Tensor, vel0: Tensor, angvel0: Tensor, steps: int,
                 obs_vel: Optional[Tensor] = None, obs_angvel: Optional[Tensor] = None,
