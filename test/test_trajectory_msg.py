@@ -36,6 +36,7 @@ from physdyn_ros import geometry as geo
 from physdyn_ros.msg import ObjectState, PredictedTrajectory
 from physdyn_ros.ros.convert import duration_from_sec, is_toppled, ns_to_time, pose, time_to_ns, twist
 from physdyn_ros.ros.trajectory import msg_to_arrays, msg_to_path, trajectory_to_msg
+from physdyn_ros.spread import RestSpread
 
 
 # ---------------------------------------------------------------------------- the previous implementation
@@ -59,7 +60,11 @@ def old_trajectory_to_msg(traj, frame_id, stamp, object_id, model_id, steps_in=0
     return PredictedTrajectory(header=Header(frame_id=frame_id, stamp=stamp), object_id=object_id,
                                model_id=model_id, time_step=duration_from_sec(traj.dt), steps_in=int(steps_in),
                                states=states, topple_probability=float(prob.max()) if prob.size else 0.0,
-                               novelty=float(traj.novelty))  # the field added with the topple head
+                               novelty=float(traj.novelty),  # the field added with the topple head
+                               # and those added with the spread
+                               rest_position_spread=float(traj.spread.position),
+                               rest_yaw_spread=float(traj.spread.yaw),
+                               topple_probability_spread=float(traj.spread.topple))
 
 
 # ------------------------------------------------------------------------------------- CDR field bytes
@@ -119,7 +124,8 @@ def fake_trajectory(rng, n: int, dt: float, tilt: float = 1.5) -> SimpleNamespac
     q = geo.quat_multiply(tilted, geo.yaw_quat(rng.uniform(-np.pi, np.pi, n)))
     return SimpleNamespace(dt=dt, positions=rng.normal(size=(n, 3)), orientations=q,
                            lin_vels=rng.normal(size=(n, 3)), ang_vels=rng.normal(size=(n, 3)) * 3,
-                           topple_prob=rng.uniform(size=n), novelty=float(rng.uniform(0, 2)))
+                           topple_prob=rng.uniform(size=n), novelty=float(rng.uniform(0, 2)),
+                           spread=RestSpread(0.9, *rng.uniform(0, 0.1, 3), (0.0, 0.0)))
 
 
 @pytest.mark.parametrize("n, dt, stamp_ns", [
@@ -143,6 +149,13 @@ def test_same_bytes_as_the_previous_implementation(n, dt, stamp_ns):
         assert [s.toppled for s in new.states] == [bool(is_toppled(q)) for q in traj.orientations]
 
 
+def test_a_trajectory_without_spread_carries_nan():
+    traj = fake_trajectory(np.random.default_rng(1), 3, 1 / 15)
+    traj.spread = None
+    msg = trajectory_to_msg(traj, "w", ns_to_time(1), "box", "m")
+    assert all(math.isnan(x) for x in (msg.rest_position_spread, msg.rest_yaw_spread, msg.topple_probability_spread))
+
+
 def test_same_bytes_for_float32_inputs_and_an_edge_of_toppling():
     rng = np.random.default_rng(0)
     traj = fake_trajectory(rng, 61, 1 / 15)
@@ -163,7 +176,7 @@ def test_predicted_trajectory_of_the_shipped_model():
     rng = np.random.default_rng(3)
     cloud = rng.normal(size=(300, 3)) * [0.08, 0.04, 0.06] + [0.5, -0.2, 0.06]
     for v, w in (([0.6, 0.1, 0.0], [0.0, 0.0, 2.0]), ([1.4, -0.5, 0.0], [3.0, 0.0, 1.0])):
-        traj = pred.rollout(cloud, v, w, horizon=60)
+        traj = pred.rollout(cloud, v, w, horizon=60, spread=True)
         args = (traj, "table", ns_to_time(1_700_000_000_000_000_000), "mug_1", pred.model_id, 2)
         new, old = trajectory_to_msg(*args), old_trajectory_to_msg(*args)
         assert same_serialization(new, old)
