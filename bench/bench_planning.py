@@ -151,6 +151,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                 first = bool(p1 and not p1.toppled and p1.position_error <= 0.02
                              and p1.yaw_error <= math.radians(10.0))
                 rows.append({"group": c["group"], "first": first, "final": bool(res.success),
+                             "p_success": float(p1.plan.success_probability) if p1 else math.nan,
                              "outcome": res.outcome, "pushes": len(res.pushes), "shape": shape.name,
                              "yaw_symmetry": res.goal.yaw_symmetry if res.goal else None})
                 e1 = (f"{100 * p1.position_error:4.1f} cm {math.degrees(p1.yaw_error):5.1f} deg (predicted "
@@ -180,6 +181,19 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
 #: Oracle outcomes that make a trial unpushable: no push of the oracle's search keeps the object upright (under
 #: the planner's perturbations), or the one it chose toppled it.
 UNPUSHABLE = ("refused", "toppled")
+
+
+def success_bins(rows: list[dict]) -> list[dict]:
+    """The first pushes by their plan's success_probability (quarters of [0, 1]): how many, their
+    mean estimate and the share that succeeded (empty where the plans carry no estimate)."""
+    pairs = [(r["p_success"], r["first"]) for r in rows if math.isfinite(r.get("p_success", math.nan))]
+    out = []
+    for lo, hi in ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.01)):
+        sel = [(p, ok) for p, ok in pairs if lo <= p < hi]
+        out.append({"bin": f"{lo:g}-{min(hi, 1.0):g}", "n": len(sel),
+                    "estimate": round(float(np.mean([p for p, _ in sel])), 3) if sel else None,
+                    "observed": round(float(np.mean([ok for _, ok in sel])), 3) if sel else None})
+    return out if pairs else []
 
 
 def ceiling_figures(learned: dict, oracle: dict | None) -> dict:
@@ -280,6 +294,10 @@ def main() -> int:
         for i, (a, b) in enumerate(zip(learned["rows"], oracle["rows"])):
             if b["outcome"] in UNPUSHABLE or a["final"] != b["final"]:
                 print(f"  trial {i:2d} {a['shape']:<28} learned {a['outcome']:<13} oracle {b['outcome']}")
+    bins = success_bins(learned["rows"])
+    if bins:
+        print("first push's success_probability (the plan's estimate) against its outcome: " + ", ".join(
+            f"{b['bin']}: {b['n']} pushes, {100 * b['observed']:.0f} % succeeded" for b in bins if b["n"]))
     out = {"trials": args.trials, "success_1push": round(learned["first"], 3),
            "success_3push": round(learned["final"], 3), **ceiling,
            "toppled_fraction": round(learned["outcomes"].get("toppled", 0) / max(len(learned["rows"]), 1), 3),
@@ -294,7 +312,8 @@ def main() -> int:
            "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
            "pybullet_success_1push": round(hull["first"], 3) if hull else None,
            "pybullet_success_3push": round(hull["final"], 3) if hull else None,
-           "pybullet_plan_time_p50_s": round(hull["plan_p50"], 4) if hull else None}
+           "pybullet_plan_time_p50_s": round(hull["plan_p50"], 4) if hull else None,
+           "success_estimate_bins": bins}
     print(json.dumps(out))
     return 0
 

@@ -31,7 +31,7 @@ import math
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Sequence, Union
+from typing import Optional, Sequence, Union
 
 import numpy as np
 
@@ -41,7 +41,7 @@ __all__ = ["SPEEDS", "LEVELS", "RestSpread", "SpreadCalibration", "spread_path",
 #: factors on the push's velocities (its impulse) of the perturbed pushes
 SPEEDS: tuple[float, ...] = (0.9, 1.1)
 #: coverage levels a calibration stores radii for; messages carry DEFAULT_LEVEL's
-LEVELS: tuple[float, ...] = (0.5, 0.8, 0.9, 0.95)
+LEVELS: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 DEFAULT_LEVEL = 0.9
 #: smallest sensitivities the calibration scales (m, rad): a push that barely moves still has the model's error
 FLOORS = (0.002, 0.02)
@@ -106,6 +106,16 @@ class SpreadCalibration:
         i = self.levels.index(level)
         return (self.position_factors[i] * max(sens[0], self.floors[0]),
                 self.yaw_factors[i] * max(sens[1], self.floors[1]))
+
+    def within_level(self, sens: tuple[float, float], position_margin: float,
+                     yaw_margin: Optional[float] = None) -> float:
+        """A lower bound on the chance that the true rest pose lies within a tolerance, from the margins (m, rad:
+        the tolerance less the predicted error; None ignores the yaw): the highest level whose position radius
+        fits the margin (the triangle inequality), and with the yaw L_pos + L_yaw - 1 (the union bound); 0.0
+        where none fits."""
+        fits = [max([lv for lv in self.levels if self.radii(sens, lv)[j] <= margin], default=0.0)
+                for j, margin in enumerate((position_margin, yaw_margin)) if margin is not None]
+        return max(0.0, sum(fits) - (len(fits) - 1))
 
     def save(self, path: Union[str, os.PathLike]) -> None:
         """Write as JSON, atomically."""

@@ -315,6 +315,8 @@ def test_plan_push_service(rclpy_init, predictor):
         assert res.within_tolerance == (err <= 0.05) and 0 < res.planning_time < 3.0
         # the physics check ran (the hull re-simulated) and the robustness check's spread is reported
         assert 0.0 <= res.physics_topple_probability <= res.topple_probability + 1e-6 and res.spread > 0.0
+        # the tiny model has no spread calibration: no success estimate, the topple spread still there
+        assert math.isnan(res.success_probability) and math.isfinite(res.trajectory.topple_probability_spread)
         node.set_parameters([Parameter("plan_physics_check", value=False)])
         res = call(plan, plan_request(cloud=xyz_to_cloud(CLOUD, "world")), timeout=30)
         assert res.success and res.physics_topple_probability == -1.0, res.message

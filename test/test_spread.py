@@ -71,8 +71,8 @@ def test_the_conformal_factors_cover_fresh_pushes_at_their_level():
         radii = np.array([cal.radii(tuple(s), level) for s in sens2])
         assert np.mean(err2 <= radii, axis=0) == pytest.approx([level, level], abs=0.015)
     assert list(pos) == sorted(pos)  # wider radii for higher levels
-    with pytest.raises(ValueError, match="level 0.7 not calibrated"):
-        cal.radii((0.01, 0.1), 0.7)
+    with pytest.raises(ValueError, match="level 0.75 not calibrated"):
+        cal.radii((0.01, 0.1), 0.75)
     with pytest.raises(ValueError, match="at least 20 pushes"):
         S.fit_calibration(sens[:5], err[:5])
     with pytest.raises(ValueError, match=r"both be \(n, 2\)"):
@@ -85,7 +85,8 @@ def test_a_push_that_barely_moves_keeps_the_floor():
 
 
 def test_the_calibration_file_round_trips_and_bad_files_are_named(tmp_path):
-    cal = S.SpreadCalibration("abc", S.LEVELS, (0.4, 1.0, 1.7, 2.9), (0.9, 2.9, 4.8, 11.0), fitted_on="x", pushes=9)
+    cal = S.SpreadCalibration("abc", (0.5, 0.8, 0.9, 0.95), (0.4, 1.0, 1.7, 2.9), (0.9, 2.9, 4.8, 11.0), fitted_on="x",
+                              pushes=9)
     path = tmp_path / "m.spread.json"
     cal.save(path)
     assert S.SpreadCalibration.load(path) == cal
@@ -137,3 +138,28 @@ def test_a_calibration_of_another_model_is_not_used(shipped, tmp_path):
     assert pred.spread_calibration is None and "fitted for model other" in pred.spread_problem
     s = pred.rollout(pred.encode(BOX), (0.3, 0.0, 0.0), (0.0, 0.0, 0.0), 30, spread=True).spread
     assert math.isnan(s.position) and math.isnan(s.yaw) and math.isfinite(s.topple)
+
+
+def test_within_level_bounds_the_chance_of_ending_within():
+    cal = S.SpreadCalibration("m", (0.5, 0.8, 0.9, 0.95), (1.0, 2.0, 3.0, 4.0), (1.0, 2.0, 3.0, 4.0))
+    sens = (0.01, 0.1)  # radii 1-4 cm and 0.1-0.4 rad at the four levels
+    assert cal.within_level(sens, 0.035) == 0.9  # the yaw ignored
+    assert cal.within_level(sens, 0.035, 0.5) == pytest.approx(0.85)  # both: the union bound 0.9 + 0.95 - 1
+    assert cal.within_level(sens, 0.035, 0.15) == pytest.approx(0.4)
+    assert cal.within_level(sens, 0.035, 0.05) == 0.0  # no yaw level fits
+    assert cal.within_level(sens, 0.005) == 0.0 and cal.within_level(sens, -0.01) == 0.0
+
+
+def test_the_plans_success_estimate_follows_the_tolerance(shipped):
+    """A plan's success_probability: near the top level for a wide tolerance, 0 for one tighter than any radius."""
+    from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
+
+    cfg = PlannerConfig(time_budget=5.0, samples=32, max_iterations=2, seed=0, physics_check=False)
+    planner = PushPlanner(shipped, cfg)
+    start = Pose2D(0.2, 0.1, 0.0)
+    wide = planner.plan(BOX, start, Goal(Pose2D(0.45, 0.1, 0.0), position_tolerance=0.1, yaw_tolerance=math.pi))
+    assert 0.5 < wide.success_probability <= 0.95 * (1 - wide.topple_probability) + 1e-9, wide.message
+    tight = planner.plan(BOX, start, Goal(Pose2D(0.45, 0.1, 0.0), position_tolerance=0.001, yaw_tolerance=math.pi))
+    assert tight.success_probability == 0.0
+    already = planner.plan(BOX, start, Goal(Pose2D(0.21, 0.1, 0.0), position_tolerance=0.02, yaw_tolerance=math.pi))
+    assert already.success_probability == 1.0 and already.speed == 0.0  # no push needed

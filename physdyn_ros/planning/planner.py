@@ -199,7 +199,8 @@ class PushPlanner:
                             goal.pose.yaw - start.yaw))), goal.yaw_symmetry)),
                         topple_probability=0.0, robust_topple_probability=0.0, worst_topple_probability=0.0,
                         spread=0.0, physics_topple_probability=-1.0, within_tolerance=True,
-                        trajectory=traj, planning_time=time.perf_counter() - t0, iterations=0, rollouts=0,
+                        success_probability=1.0, trajectory=traj, planning_time=time.perf_counter() - t0,
+                        iterations=0, rollouts=0,
                         horizon=horizon, body_source=body.source, model_id=str(self.model.model_id),
                         message=_with_note("already within tolerance: no push needed", goal))
 
@@ -229,10 +230,17 @@ class PushPlanner:
             raise PlanningError(f"no feasible push: the best push considered spins the object at {spin:.1f} rad/s "
                                 f"(max_spin {cfg.max_spin:g}) or breaks another limit; try a nearer goal")
         traj = best.trajectory
+        success = math.nan
         if isinstance(self.model, Predictor):  # the chosen push's calibrated spread (~2 ms)
             again = self.model.rollout(replace(search.code, points=None), best.lin_vel, best.ang_vel, search.horizon,
                                        position=traj.positions[0], orientation=traj.orientations[0], spread=True)
             traj = replace(traj, spread=again.spread)
+            cal = self.model.spread_calibration
+            if cal is not None and again.spread is not None:
+                yaw_margin = None if goal.ignores_yaw else goal.yaw_tolerance - best.yaw_err
+                level = cal.within_level(again.spread.sensitivity, goal.position_tolerance - best.pos_err, yaw_margin)
+                topple = max(worst, best.physics_topple, float(traj.topple_prob.max()))
+                success = level * (1.0 - topple)
         final = traj.positions[-1]
         final_yaw = float(wrap_angle(start.yaw + float(yaw_of(traj.orientations[-1]))))
         within = best.pos_err <= goal.position_tolerance and (goal.ignores_yaw or best.yaw_err <= goal.yaw_tolerance)
@@ -256,7 +264,7 @@ class PushPlanner:
                         topple_probability=float(best.topple), robust_topple_probability=float(best.robust_topple),
                         worst_topple_probability=float(max(best.topple, best.worst_topple)),
                         spread=float(best.spread), physics_topple_probability=float(best.physics_topple),
-                        within_tolerance=bool(within), trajectory=traj,
+                        within_tolerance=bool(within), success_probability=float(success), trajectory=traj,
                         planning_time=time.perf_counter() - t0, iterations=search.iterations,
                         rollouts=search.rollouts, horizon=search.horizon, body_source=body.source,
                         model_id=str(self.model.model_id), message=_with_note(msg, goal))

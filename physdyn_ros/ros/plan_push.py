@@ -111,6 +111,7 @@ def fill_response(res: PlanPush.Response, plan: Any, frame: str, stamp: Any, obj
     res.predicted_position_error = float(plan.position_error)
     res.predicted_yaw_error = float(plan.yaw_error)
     res.within_tolerance = bool(plan.within_tolerance)
+    res.success_probability = float(plan.success_probability)
     res.planning_time = float(plan.planning_time)
     res.trajectory = trajectory_to_msg(plan.trajectory, frame, stamp, object_id, model_id)
     # the plan's risk: the model's, the tipping estimate's, the robustness check's mean and the physics check's
