@@ -47,12 +47,18 @@ def run(args: argparse.Namespace) -> int:
     pred = Predictor.load(args.model, device=args.device, threads=1, topple_fusion=args.topple_fusion,
                           friction=args.friction)
     cloud = load_cloud(args.cloud)
-    traj = pred.rollout(cloud, args.lin_vel, args.ang_vel, args.horizon, args.position, args.orientation)
+    traj = pred.rollout(cloud, args.lin_vel, args.ang_vel, args.horizon, args.position, args.orientation,
+                        spread=True)
+    spread = traj.spread
+    assert spread is not None
+    finite = not math.isnan(spread.position)
     if args.json:
         print(json.dumps({"model_id": pred.model_id, "dt": traj.dt, "positions": traj.positions.tolist(),
                           "orientations": traj.orientations.tolist(), "lin_vels": traj.lin_vels.tolist(),
                           "ang_vels": traj.ang_vels.tolist(), "topple_prob": traj.topple_prob.tolist(),
-                          "novelty": None if math.isnan(traj.novelty) else traj.novelty}))
+                          "novelty": None if math.isnan(traj.novelty) else traj.novelty,
+                          "spread": {"level": spread.level, "position": spread.position if finite else None,
+                                     "yaw": spread.yaw if finite else None, "topple": spread.topple}}))
         return 0
     p, q = traj.positions[-1], traj.orientations[-1]
     rot = geo.quat_to_matrix(q)
@@ -65,7 +71,11 @@ def run(args: argparse.Namespace) -> int:
           f"tilt {tilt:.1f} deg")
     print(f"final velocity    [{traj.lin_vels[-1][0]:.4f}, {traj.lin_vels[-1][1]:.4f}, {traj.lin_vels[-1][2]:.4f}] m/s")
     fused = " (fused with physics on the cloud's solid)" if pred.topple_fusion is not None else ""
-    print(f"topple probability {traj.topple_probability:.3f}{fused}")
+    print(f"topple probability {traj.topple_probability:.3f}{fused} (spread {spread.topple:.3f})")
+    if finite:
+        print(f"spread            the object rests within {100 * spread.position:.2f} cm and "
+              f"{math.degrees(spread.yaw):.1f} deg of this with probability {spread.level:g} if it stays upright "
+              "(calibrated)")
     if not math.isnan(traj.novelty):
         note = "  (beyond 99.5 % of the training inputs: unlike what the model was fitted on)" if traj.novelty > 1 \
             else ""

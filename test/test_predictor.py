@@ -14,6 +14,8 @@
 """The Predictor API: input checking, checkpoint errors, batch = single, steps in, and `physdyn predict`."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -203,6 +205,11 @@ def test_cloud_files_and_predict_command(tmp_path, cloud, model_path, capsys):
                  "0", "--ang-vel", "0", "0", "1", "--horizon", "30"])
     out = capsys.readouterr().out
     assert code == 0 and "final position" in out and "topple probability" in out
+    assert "(spread " in out and "with probability 0.9" not in out  # a model without a spread calibration
+    code = main(["predict", "--cloud", str(tmp_path / "c.npy"), "--lin-vel", "0.4", "0", "0", "--ang-vel", "0", "0",
+                 "1", "--json"])  # the shipped model has one
+    spread = json.loads(capsys.readouterr().out)["spread"]
+    assert code == 0 and spread["level"] == 0.9 and spread["position"] > 0 and spread["yaw"] > 0
     bad = main(["predict", "--model", str(model_path), "--cloud", str(tmp_path / "c.npy"), "--lin-vel", "0", "0",
                 "0", "--ang-vel", "0", "0", "0", "--horizon", "500"])
     assert bad == 2 and "horizon must be in 1..80" in capsys.readouterr().err
