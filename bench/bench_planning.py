@@ -297,7 +297,8 @@ def main() -> int:
     bins = success_bins(learned["rows"])
     if bins:
         print("first push's success_probability (the plan's estimate) against its outcome: " + ", ".join(
-            f"{b['bin']}: {b['n']} pushes, {100 * b['observed']:.0f} % succeeded" for b in bins if b["n"]))
+            f"{b['bin']}: {b['n']} pushes, mean estimate {b['estimate']:.2f}, {100 * b['observed']:.0f} % succeeded"
+            for b in bins if b["n"]))
     out = {"trials": args.trials, "success_1push": round(learned["first"], 3),
            "success_3push": round(learned["final"], 3), **ceiling,
            "toppled_fraction": round(learned["outcomes"].get("toppled", 0) / max(len(learned["rows"]), 1), 3),

@@ -321,6 +321,9 @@ class Predictor:
         if cal.model_id != self.model_id:
             self.spread_problem = f"{path} was fitted for model {cal.model_id}, not {self.model_id}"
             return
+        if DEFAULT_LEVEL not in cal.levels:
+            self.spread_problem = f"{path} has no level {DEFAULT_LEVEL} (levels {list(cal.levels)})"
+            return
         self.spread_calibration = cal
 
     def _warm_up(self) -> None:
@@ -463,8 +466,8 @@ class Predictor:
         lin, ang = perturbed_twists(v0, w0)
         others = []
         for k, (v, w) in enumerate(zip(lin, ang)):
-            # observed states hand the push over to the model at their last one: perturb them all alike, or the
-            # observation would wash the perturbation out (and the spread out with it)
+            # observed states hand the push over to the model at their last one: perturb their velocities alike,
+            # or the observation would wash the perturbation out (and the spread out with it)
             scaled = None if obs is None else {**obs, "lin_vels": obs["lin_vels"] * SPEEDS[k],
                                                "ang_vels": obs["ang_vels"] * SPEEDS[k]}
             others.append(run(v, w, scaled))
@@ -473,7 +476,9 @@ class Predictor:
                            yaw_of(np.array([t.orientations[-1] for t in others])))
         cal = self.spread_calibration
         radius, turn = cal.radii(sens, DEFAULT_LEVEL) if cal is not None else (math.nan, math.nan)
-        topple = float(np.std([traj.topple_probability] + [t.topple_probability for t in others]))
+        # the model's own probabilities of all three pushes (a fused one beside two unfused would measure the fusion)
+        own = traj if fuse is None else run(v0, w0, obs)
+        topple = float(np.std([own.topple_probability] + [t.topple_probability for t in others]))
         return replace(traj, spread=RestSpread(DEFAULT_LEVEL, radius, turn, topple, sens))
 
     def rollout_batch(self, shapes: Union[ShapeCode, np.ndarray, Sequence[Union[ShapeCode, np.ndarray]]],

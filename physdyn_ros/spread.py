@@ -16,11 +16,12 @@
 The model is deterministic; its errors grow where the outcome is sensitive to the push (an object that slides
 far, rolls, or sits on the edge of turning one way or the other). The push is rolled out again a little weaker
 and stronger (SPEEDS: the impulse, so both velocities, x0.9 and x1.1): the RMS change of the rest position and
-yaw is the push's sensitivity (observed states fed first are scaled alike: the model takes the push over at
-the last of them). A calibration (SpreadCalibration, fitted by
+yaw is the push's sensitivity (the velocities of observed states fed first are scaled alike: the model takes
+the push over at the last of them). A calibration (SpreadCalibration, fitted by
 `physdyn fit-spread` on shapes the model was not trained on, stored beside the checkpoint) turns it into radii
 that held the true rest position and yaw of upright pushes with a stated probability (split-conformal quantiles
-of error / sensitivity: no assumption on the errors' distribution). The topple spread is the standard deviation
+of error / sensitivity: no assumption on the errors' distribution; a coverage over pushes like the fitted ones,
+from their true initial velocities, at the 60-step rest pose). The topple spread is the standard deviation
 of the whole-push topple probability over the push and its perturbations. The model card's reliability table
 gives the measured coverage on held-out families (bench/spread_reliability.py).
 """

@@ -53,7 +53,7 @@ def test_a_prediction_recorded_before_novelty_existed_still_decodes():
 
 def test_a_prediction_with_novelty_but_no_spread_keeps_its_novelty():
     """A prediction recorded after `novelty` and before the spread fields reads with that generation's
-    definition: its novelty survives (the oldest definition would read it too, dropping the novelty)."""
+    definition: its novelty survives (the single legacy definition, without novelty, lost it)."""
     msgtype = "physdyn_ros/msg/PredictedTrajectory"
     mid = T._legacy_store(msgtype, 1)
     fields = [name for name, _ in mid.fielddefs[msgtype][1]]

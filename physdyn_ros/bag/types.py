@@ -153,7 +153,8 @@ def deserialize(data: bytes | memoryview, msgtype: str):
     except Exception:
         if msgtype not in ADDED_FIELDS:
             raise
-    # newest definition first: an older one would read a newer message's leading fields and drop the rest
+    # newest definition first: rosbags refuses a message with more than 3 bytes left over, which every addition so
+    # far leaves, but an addition of a bool or a byte would let an older definition read a newer message
     for generation in reversed(range(len(ADDED_FIELDS[msgtype]))):
         try:
             return _legacy_store(msgtype, generation).deserialize_cdr(data, msgtype)

@@ -237,8 +237,12 @@ class PushPlanner:
             traj = replace(traj, spread=again.spread)
             cal = self.model.spread_calibration
             if cal is not None and again.spread is not None:
-                yaw_margin = None if goal.ignores_yaw else goal.yaw_tolerance - best.yaw_err
-                level = cal.within_level(again.spread.sensitivity, goal.position_tolerance - best.pos_err, yaw_margin)
+                # the radii are about `again`'s rest pose, the errors the search's: the margins give up their gap
+                gap = float(np.linalg.norm(again.positions[-1, :2] - traj.positions[-1, :2]))
+                turn = abs(float(wrap_angle(float(yaw_of(again.orientations[-1]) - yaw_of(traj.orientations[-1])))))
+                yaw_margin = None if goal.ignores_yaw else goal.yaw_tolerance - best.yaw_err - turn
+                level = cal.within_level(again.spread.sensitivity, goal.position_tolerance - best.pos_err - gap,
+                                         yaw_margin)
                 topple = max(worst, best.physics_topple, float(traj.topple_prob.max()))
                 success = level * (1.0 - topple)
         final = traj.positions[-1]

@@ -286,9 +286,9 @@ class PushPlan:
     # the fused probability of the model and the solid's runs (-1: not checked)
     physics_topple_probability: float
     within_tolerance: bool  # the predicted final pose is within both tolerances
-    # an estimate of the chance that the object rests within both tolerances and upright: the spread's lower
-    # bound on ending within them (SpreadCalibration.within_level) times 1 - topple_probability; NaN without
-    # a spread calibration
+    # an estimate of the chance that the object rests within both tolerances and upright: the spread's
+    # conservative estimate of ending within them (SpreadCalibration.within_level) times 1 - the plan's highest
+    # topple risk; 1 when no push is needed, NaN for a model without a spread calibration
     success_probability: float
     trajectory: Trajectory  # predicted roll-out of the chosen push (frame 0 = start)
     planning_time: float  # s, wall time of the plan() call
