@@ -19,6 +19,8 @@ import importlib
 import json
 import os
 import sys
+from pathlib import Path
+from typing import Any, Callable
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +39,18 @@ def quiet_import(name: str):
     finally:
         os.dup2(saved, 1)
         os.close(saved)
+
+
+def _beside(load: Callable[[Path], Any], path: Path, pushes: str) -> str:
+    """How info names a file fitted beside the shipped model: what it is for and was fitted on, none, or why it
+    cannot be read."""
+    try:
+        fitted = load(path)
+    except FileNotFoundError:
+        return "none"
+    except ValueError as exc:
+        return f"unreadable ({exc})"
+    return f"{path.name}, for {fitted.model_id}, fitted on {fitted.pushes} {pushes} of {fitted.fitted_on}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,26 +78,13 @@ def run(args: argparse.Namespace) -> int:
             info["default_model_id"] = load_checkpoint(DEFAULT_MODEL)["model_id"]
         except Exception as exc:  # noqa: BLE001 - info reports a broken model, it does not fail on it
             info["default_model_id"] = f"unreadable ({exc})"
+        from physdyn_ros.spread import SpreadCalibration, spread_path
         from physdyn_ros.topple_fusion import FusionWeights, fusion_path
 
-        try:  # Predictor.load(topple_fusion=True) and the planner's physics check read it
-            weights = FusionWeights.load(fusion_path(DEFAULT_MODEL))
-            info["topple_fusion"] = (f"{fusion_path(DEFAULT_MODEL).name}, for {weights.model_id}, fitted on "
-                                     f"{weights.pushes} pushes of {weights.fitted_on}")
-        except FileNotFoundError:
-            info["topple_fusion"] = "none"
-        except ValueError as exc:
-            info["topple_fusion"] = f"unreadable ({exc})"
-        from physdyn_ros.spread import SpreadCalibration, spread_path
-
-        try:  # the Predictor's rollout(spread=True) and the nodes' rest_spread read it
-            cal = SpreadCalibration.load(spread_path(DEFAULT_MODEL))
-            info["spread_calibration"] = (f"{spread_path(DEFAULT_MODEL).name}, for {cal.model_id}, fitted on "
-                                          f"{cal.pushes} upright pushes of {cal.fitted_on}")
-        except FileNotFoundError:
-            info["spread_calibration"] = "none"
-        except ValueError as exc:
-            info["spread_calibration"] = f"unreadable ({exc})"
+        # Predictor.load(topple_fusion=True) and the planner's physics check read the one, rollout(spread=True)
+        # and the nodes' rest_spread the other
+        info["topple_fusion"] = _beside(FusionWeights.load, fusion_path(DEFAULT_MODEL), "pushes")
+        info["spread_calibration"] = _beside(SpreadCalibration.load, spread_path(DEFAULT_MODEL), "upright pushes")
     if args.json:
         print(json.dumps(info, indent=2))
     else:

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .fit_args import add_fit_arguments, fit_pushes
 from .spread import LEVELS, SpreadCalibration, fit_calibration, spread_path, yaw_of
 
 __all__ = ["HORIZON", "measure", "add_arguments", "run"]
@@ -79,25 +80,14 @@ def measure(predictor: Any, sims: Any, index: np.ndarray, horizon: int = HORIZON
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset to fit on")
-    parser.add_argument("--checkpoint", default=None, help="default: the shipped model")
-    parser.add_argument("--splits", nargs="+", default=["test"],
-                        help="splits to fit on (all three for a dataset made for fitting)")
-    parser.add_argument("--max-sequences", type=int, default=1500)
-    parser.add_argument("--out", type=Path, default=None, help="default: beside the checkpoint")
+    add_fit_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from .learn.windows import load_sims
     from .predictor import Predictor
-    from .resources import DEFAULT_MODEL
 
-    if args.max_sequences < 20:
-        raise ValueError(f"--max-sequences must be at least 20, got {args.max_sequences}")
-    ckpt = Path(args.checkpoint) if args.checkpoint else DEFAULT_MODEL
+    ckpt, sims, index = fit_pushes(args, 20)
     predictor = Predictor.load(ckpt, threads=1)
-    sims = load_sims(args.data, list(args.splits))
-    index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
     m = measure(predictor, sims, index)
     upright = ~m["toppled"]
     pos, yaw = fit_calibration(m["sensitivity"][upright], m["error"][upright])

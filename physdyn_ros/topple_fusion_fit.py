@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .fit_args import add_fit_arguments, fit_pushes
 from .topple_fusion import FUSION_FRAMES, RUNS, FusionWeights, SolidPhysics, fit_weights, fusion_path
 
 __all__ = ["push_verdicts", "add_arguments", "run"]
@@ -67,12 +68,7 @@ def model_and_truth(model: Any, sims: Any, index: np.ndarray) -> tuple[np.ndarra
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="dataset to fit on (its test split)")
-    parser.add_argument("--checkpoint", default=None, help="default: the shipped model")
-    parser.add_argument("--splits", nargs="+", default=["test"],
-                        help="splits to fit on (all three for a dataset made for fitting)")
-    parser.add_argument("--max-sequences", type=int, default=1500)
-    parser.add_argument("--out", type=Path, default=None, help="default: beside the checkpoint")
+    add_fit_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -80,18 +76,12 @@ def run(args: argparse.Namespace) -> int:
 
     from .learn.checkpoint import load_model
     from .learn.evaluate import topple_scores
-    from .learn.windows import load_sims
-    from .resources import DEFAULT_MODEL
 
-    if args.max_sequences < 10:
-        raise ValueError(f"--max-sequences must be at least 10, got {args.max_sequences}")
     torch.set_num_threads(1)
-    ckpt = Path(args.checkpoint) if args.checkpoint else DEFAULT_MODEL
+    ckpt, sims, index = fit_pushes(args, 10)
     model, meta = load_model(ckpt)
     if model.topple is None:
         raise ValueError(f"{ckpt} has no whole-push topple head: fit one first (physdyn fit-topple)")
-    sims = load_sims(args.data, list(args.splits))
-    index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
     p_model, truth = model_and_truth(model, sims, index)
     toppled = push_verdicts(sims, index)
     coef, bias = fit_weights(p_model, toppled, truth)

@@ -191,3 +191,23 @@ def test_a_calibration_without_the_messages_level_is_not_used(shipped, tmp_path)
     pred = Predictor.load(ckpt, threads=1)
     assert pred.spread_calibration is None and "no level 0.9" in pred.spread_problem
     assert math.isnan(pred.rollout(pred.encode(BOX), (0.3, 0.0, 0.0), (0.0, 0.0, 0.0), 30, spread=True).spread.position)
+
+
+def test_fit_command_writes_a_calibration_the_predictor_loads(shipped, tmp_path, capsys):
+    """`physdyn fit-spread` on a small real dataset: a calibration beside the checkpoint, for its model, which the
+    Predictor then uses; too few pushes are refused with one line."""
+    from learn_support import tiny_dataset
+
+    from physdyn_ros.cli import main
+
+    data = tiny_dataset()
+    ckpt = tmp_path / "default.pt"
+    ckpt.symlink_to(DEFAULT_MODEL)
+    assert main(["fit-spread", "--data", str(data), "--checkpoint", str(ckpt), "--splits", "train", "val", "test",
+                 "--max-sequences", "120"]) == 0
+    cal = S.SpreadCalibration.load(S.spread_path(ckpt))
+    assert cal.model_id == shipped.model_id and cal.levels == S.LEVELS and 20 <= cal.pushes <= 120
+    assert list(cal.position_factors) == sorted(cal.position_factors) and cal.fitted_on == "data (train, val, test)"
+    assert Predictor.load(ckpt, threads=1).spread_calibration == cal
+    assert main(["fit-spread", "--data", str(data), "--checkpoint", str(ckpt), "--max-sequences", "5"]) == 2
+    assert "--max-sequences must be at least 20" in capsys.readouterr().err
