@@ -346,6 +346,7 @@ class PusherNode(ManagedNode):
                                        f"{100 * goal_errors(pose, goal)[0]:.1f} cm from the goal"), session, pose
             feedback.stage, feedback.push_twist, feedback.impulse = "pushing", plan.push_twist, plan.impulse
             feedback.contact_point, feedback.topple_probability = plan.contact_point, plan.topple_probability
+            feedback.success_probability = plan.success_probability
             feedback.predicted_rest_pose = plan.predicted_final_pose
             handle.publish_feedback(feedback)
             mark = self._mark(req.object_id)
