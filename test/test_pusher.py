@@ -192,3 +192,21 @@ def test_a_goal_beyond_one_push_is_reached_in_legs(suite):
     assert result.pushes >= 2 and len(pushed) >= 2, result.message
     first = pushed[0].predicted_rest_pose.position
     assert 0.1 < here.x - first.x < 0.4, (here.x, first.x)  # the first push aims at an intermediate goal
+
+
+def test_each_push_is_planned_from_the_rest_state_the_pusher_saw(suite):
+    """The pusher plans from the state it saw the object rest in, not from plan_push's latest object_state:
+    the predictor's executor may not have replaced a moving state yet when a push ends, and a plan for where the
+    object was a frame ago put the contact centimetres off its surface (push_object refused it)."""
+    from copy import deepcopy
+
+    from physdyn_ros.planning import Goal, Pose2D
+
+    sim, pusher, client, states = suite
+    rest = deepcopy(states[-1])
+    rest.pose.position.x += 0.03  # a rest pose that is not the latest object_state the predictor holds
+    x, y = rest.pose.position.x, rest.pose.position.y
+    plan = pusher._plan(PushToGoal.Goal(object_id="object"), Goal(Pose2D(x + 0.12, y, 0.0), 0.03, math.pi), rest)
+    assert plan.success, plan.message
+    first = plan.trajectory.states[0].pose.position
+    assert (first.x, first.y) == pytest.approx((x, y), abs=1e-6)

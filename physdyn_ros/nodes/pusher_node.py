@@ -330,13 +330,13 @@ class PusherNode(ManagedNode):
             feedback.position_error, feedback.yaw_error = goal_errors(pose, goal)
             handle.publish_feedback(feedback)
             aim = session.aim(pose, reach=reach)
-            plan = self._plan(req, aim)
+            plan = self._plan(req, aim, state)
             if not plan.success and 0 < plan.reach < reach:  # too far for one push: aim at the first leg's end
                 reach = plan.reach
                 aim = session.aim(pose, reach=reach)
-                plan = self._plan(req, aim)
+                plan = self._plan(req, aim, state)
             if not plan.success and aim is not goal:  # the slide-ratio correction must not cause a refusal
-                plan = self._plan(req, goal)
+                plan = self._plan(req, goal, state)
             if handle.is_cancel_requested:
                 return Stop("cancelled", f"cancelled before push {k}"), session, pose
             if not plan.success:
@@ -362,13 +362,15 @@ class PusherNode(ManagedNode):
             feedback.position_error, feedback.yaw_error = goal_errors(rest, goal)
             handle.publish_feedback(feedback)
 
-    def _plan(self, req, aim: Goal) -> PlanPush.Response:
-        plan_req = PlanPush.Request(object_id=req.object_id, start_from_object_state=True, mass=req.mass,
-                                    max_speed=req.max_speed, position_tolerance=aim.position_tolerance,
-                                    yaw_tolerance=aim.yaw_tolerance)
+    def _plan(self, req, aim: Goal, start: ObjectState) -> PlanPush.Response:
+        """plan_push from `start`, the state this node saw the object rest in: not the predictor's latest
+        object_state, which may still be a moving one its executor has not replaced yet (a plan for where the
+        object was a frame ago puts the contact centimetres off its surface)."""
+        plan_req = PlanPush.Request(object_id=req.object_id, start_from_object_state=False, start_pose=start.pose,
+                                    mass=req.mass, max_speed=req.max_speed,
+                                    position_tolerance=aim.position_tolerance, yaw_tolerance=aim.yaw_tolerance)
         plan_req.header.frame_id = self.table_frame
-        z = self._last_z(req.object_id)
-        plan_req.goal_pose = pose_msg(aim.pose, z)
+        plan_req.goal_pose = pose_msg(aim.pose, float(start.pose.position.z))
         return self._call(self.plan_client, plan_req, "plan_push")
 
     def _push(self, object_id: str, plan: PlanPush.Response) -> None:
