@@ -166,6 +166,13 @@ def topple_labels(quat: np.ndarray, angle: float = TOPPLE_ANGLE) -> tuple[np.nda
     return toppled, first
 
 
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Yaw (rad) of the x axis projected on the table, for (..., 4) quaternions (x, y, z, w)."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
 def up_tilt_angle(q: np.ndarray) -> np.ndarray:
     """Angle (rad) between the object's up axis (object z) and world up, for orientations q."""
     q = _f64(q)

@@ -43,8 +43,8 @@ from .conventions import DT
 from .learn.frames import c_to_world, canonicalize_cloud, compose_rotations, world_to_c
 from .learn.rules import HEAD_TIMING_STEPS, consistent_topple, flat_unless_toppling, settle, topple_with_head
 from .learn.support import DESCRIPTOR_POINTS, support_descriptors
-from .spread import (DEFAULT_LEVEL, SPEEDS, RestSpread, SpreadCalibration, perturbed_twists, sensitivity, spread_path,
-                     yaw_of)
+from .geometry import yaw_of
+from .spread import DEFAULT_LEVEL, SPEEDS, RestSpread, SpreadCalibration, perturbed_twists, sensitivity, spread_path
 
 __all__ = ["ShapeCode", "Trajectory", "TrajectoryBatch", "Observed", "Predictor", "load_cloud"]
 
@@ -455,6 +455,7 @@ class Predictor:
                 fuse = lambda whole: self.topple_fusion.weights.fuse(whole, toppled[None])  # noqa: E731
             except ValueError:  # a cloud that encloses no solid (flat, a line): the model's probability stands
                 fuse = None
+
         def run(v: np.ndarray, w: np.ndarray, seen: Optional[dict[str, np.ndarray]],
                 f: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> Trajectory:
             return self._run(code.feature[None], np.array([code.heading]), v[None], w[None], p0[None], q0[None],

@@ -37,7 +37,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 
 __all__ = ["SPEEDS", "LEVELS", "RestSpread", "SpreadCalibration", "spread_path", "perturbed_twists",
-           "sensitivity", "yaw_of", "fit_calibration"]
+           "sensitivity", "fit_calibration"]
 
 #: factors on the push's velocities (its impulse) of the perturbed pushes
 SPEEDS: tuple[float, ...] = (0.9, 1.1)
@@ -71,13 +71,6 @@ def perturbed_twists(lin_vel: np.ndarray, ang_vel: np.ndarray) -> tuple[np.ndarr
     factor scales both (a weaker or stronger impulse at the same contact)."""
     k = np.asarray(SPEEDS, dtype=np.float64)[:, None]
     return k * np.asarray(lin_vel, dtype=np.float64), k * np.asarray(ang_vel, dtype=np.float64)
-
-
-def yaw_of(quaternions: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of x, y, z, w quaternions (..., 4): the heading of the body's x axis in the table plane."""
-    q = np.asarray(quaternions, dtype=np.float64)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def sensitivity(rest_xy: np.ndarray, rest_yaw: float, perturbed_xy: np.ndarray,

@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from .fit_args import add_fit_arguments, fit_pushes
-from .spread import LEVELS, SpreadCalibration, fit_calibration, spread_path, yaw_of
+from .geometry import yaw_of
+from .spread import LEVELS, SpreadCalibration, fit_calibration, spread_path
 
 __all__ = ["HORIZON", "measure", "add_arguments", "run"]
 

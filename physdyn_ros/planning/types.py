@@ -25,6 +25,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from ..conventions import GRAVITY
+from ..geometry import yaw_of
 from ..predictor import Trajectory
 from ..shapes.core import DEFAULT_DENSITY
 
@@ -56,13 +57,6 @@ def fold_yaw(error: Union[float, np.ndarray], order: Optional[int]) -> Union[flo
         return np.minimum(r, period - r)
     r = float(error) % period
     return min(r, period - r)
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of the x axis projected on the table, for (..., 4) quaternions (x, y, z, w)."""
-    q = np.asarray(q, dtype=np.float64)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def finite(value: Any, name: str) -> float:
