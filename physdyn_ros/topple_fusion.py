@@ -37,7 +37,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -85,20 +84,11 @@ class FusionWeights:
         return 1.0 / (1.0 + np.exp(-z))
 
     def save(self, path: Union[str, os.PathLike]) -> None:
-        """Write as JSON, atomically (a temporary file in the same folder, then a rename)."""
-        path = Path(path)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as f:
-                json.dump(asdict(self), f, indent=1)
-                f.write("\n")
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would hide the weights from a node run by another user
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        """Write as JSON, atomically (data.format.atomic_write: the mode open() would give, then a rename)."""
+        from .data.format import atomic_write
+
+        text = json.dumps(asdict(self), indent=1) + "\n"
+        atomic_write(Path(path), lambda fh: fh.write(text.encode()))
 
     @classmethod
     def load(cls, path: Union[str, os.PathLike]) -> "FusionWeights":
