@@ -22,7 +22,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from physdyn_ros.perception import SceneConfig, Tracker, segment
-from physdyn_ros.perception.pose_tracking import PoseConfig, PoseTracker, fit_onset, footprint_com
+from physdyn_ros.perception.pose_tracking import PoseConfig, PoseTracker, column_com, fit_onset, footprint_com
 from physdyn_ros.perception.registration import ObjectModel, register
 from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
 from physdyn_ros.perception.tracking import shape_signature
@@ -193,3 +193,32 @@ def test_fit_onset_recovers_a_slide_from_two_clouds():
     assert t_fit == pytest.approx(t0, abs=1e-3)
     np.testing.assert_allclose(v_fit, v0, atol=0.01)
     np.testing.assert_allclose(w_fit, [0, 0, 3.0], atol=0.05)
+
+
+def test_column_com_fills_the_view_down_to_the_table():
+    """The solid under a view's surface: a box seen from its top and one side, and a wedge's slope, give their
+    centres (a wedge's at a third of its height, where half the top's height is 1.3 cm too high)."""
+    rng = np.random.default_rng(0)
+    top = np.c_[rng.uniform(-0.05, 0.05, 600), rng.uniform(-0.03, 0.03, 600), np.full(600, 0.08)]
+    side = np.c_[np.full(300, 0.05), rng.uniform(-0.03, 0.03, 300), rng.uniform(0.005, 0.08, 300)]
+    np.testing.assert_allclose(column_com(np.r_[top, side]), [0.0, 0.0, 0.04], atol=0.0015)
+    x = rng.uniform(-0.05, 0.05, 800)
+    slope = np.c_[x, rng.uniform(-0.03, 0.03, 800), 0.08 * (x + 0.05) / 0.1]
+    np.testing.assert_allclose(column_com(slope), [0.05 - 0.1 / 3, 0.0, 0.08 / 3], atol=0.0015)
+    np.testing.assert_allclose(column_com(slope + [0, 0, 0.7], table_height=0.7), [0.05 - 0.1 / 3, 0.0, 0.7 + 0.08 / 3],
+                               atol=0.0015)
+
+
+def test_at_rest_the_pose_holds_where_the_fit_is_no_better():
+    """An object at rest keeps its pose exactly from cloud to cloud (fresh sensor noise each time) instead of
+    following the noise; a 1 cm move is still followed."""
+    pt = PoseTracker()
+    poses = []
+    for k in range(12):
+        scene = tabletop_scene(20_000, rng=np.random.default_rng(k))
+        box = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(k)).objects[0].points
+        pt.update(k / RATE, [("box", box)])
+        poses.append(np.r_[pt.tracks["box"].position, pt.tracks["box"].rotation.ravel()])
+    assert all(np.array_equal(poses[1], p) for p in poses[2:]), np.ptp(poses[1:], axis=0).max()
+    moved = pt.update(12 / RATE, [("box", box + [0.01, 0.0, 0.0])]).states[0]
+    np.testing.assert_allclose(moved.position - poses[-1][:3], [0.01, 0.0, 0.0], atol=0.001)

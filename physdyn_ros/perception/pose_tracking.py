@@ -15,14 +15,17 @@
 
 Per tracked object (its id from tracking.Tracker):
 * reference: when first seen, its points become an `ObjectModel` (registration.py) in the object's frame, whose
-  origin is the centre-of-mass estimate (given by the caller, e.g. the encoder's centre-of-mass head, else the
-  footprint estimate `footprint_com`) and whose axes are the table's at that instant: the published orientation
-  is the rotation since the reference was captured (identity then), as Predictor.rollout takes orientations;
+  origin is the centre-of-mass estimate (given by the caller: the perception node takes the encoder's
+  centre-of-mass head in x-y and `column_com`'s height; else the footprint estimate `footprint_com`) and whose
+  axes are the table's at that instant: the published orientation is the rotation since the reference was
+  captured (identity then), as Predictor.rollout takes orientations;
 * pose at every cloud: the object's points registered to the model (point-to-plane ICP) from the
   constant-velocity prediction and, when the points' centroid moved away from its prediction, from that pose
   moved by the shift too (the first cloud of a push is far from any prediction); the fit explaining more points
   wins; a fit that explains too few points keeps the track but
-  reports low confidence and the reason; points that fit well and lie off the model grow it;
+  reports low confidence and the reason; a fit that explains the cloud no better than the last pose keeps that
+  pose; the points of a fit close to its guess (the pose held, or the motion predicted) that fit well
+  and lie off the model grow it;
 * twist: a least-squares line through the last `window` poses (positions, and rotation vectors relative to the
   newest orientation) within `window_time`: zero-mean sensor noise averages out; at rest it is zero;
 * onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
@@ -84,6 +87,14 @@ class PoseConfig:
 #: twice the 4 mm threshold within three clouds.
 CONFIRM = 2.0
 CONFIRM_FRAMES = 2
+#: A track keeps its last pose unless the registration explains the new cloud clearly better: more than this much
+#: more of its points (share), or a residual below the last pose's by more than HOLD_RMSE and HOLD_RMSE_ABS (m).
+HOLD_INLIERS = 0.02
+HOLD_RMSE = 1.1
+HOLD_RMSE_ABS = 0.0002
+#: A fit grows the model only when it stays within GROW_TURN (rad) and GROW_SHIFT (m) of its starting guess.
+GROW_TURN = math.radians(1.0)
+GROW_SHIFT = 0.002
 
 
 @dataclass
@@ -135,6 +146,41 @@ def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
     except (QhullError, ValueError):
         centre = xy.mean(axis=0)
     return np.array([centre[0], centre[1], 0.5 * (top + table_height)])
+
+
+def column_com(points: np.ndarray, table_height: float = 0.0, cell: float = 0.003) -> np.ndarray:
+    """Centre of the solid under a view's surface: the highest point per `cell` (m) in x-y, a piecewise-linear
+    height field over their Delaunay triangles, each column filled down to the table. Exact for shapes whose
+    sides fall straight or inward to the table (boxes, cylinders, wedges, pyramids) when the camera sees their
+    top; its height is the right one for a wedge or a pyramid, where half the top's is too high."""
+    from scipy.spatial import Delaunay, QhullError
+
+    pts = np.asarray(points, dtype=np.float64)
+    _, inv = np.unique(np.floor(pts[:, :2] / cell).astype(np.int64), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    top = np.full(inv.max() + 1, -np.inf)
+    np.maximum.at(top, inv, pts[:, 2] - table_height)
+    xy = np.zeros((len(top), 2))
+    np.add.at(xy, inv, pts[:, :2])
+    xy /= np.bincount(inv)[:, None]
+    h = np.maximum(top, 0.0)
+    try:
+        tri = Delaunay(xy).simplices
+    except (QhullError, ValueError):
+        return np.array([*xy.mean(axis=0), table_height + 0.5 * float(h.max())])
+    a, b, c = xy[tri[:, 0]], xy[tri[:, 1]], xy[tri[:, 2]]
+    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1]))
+    ht = h[tri]  # (T, 3) heights at the corners
+    volume = area * ht.mean(axis=1)
+    if volume.sum() <= 0.0:
+        return np.array([*xy.mean(axis=0), table_height])
+    # a column with a linear top: its x-y centroid weights corner i by (h0 + h1 + h2 + h_i), its z centroid is
+    # the integral of h^2 / 2 over the triangle
+    weights = ht.sum(axis=1, keepdims=True) + ht
+    centre_xy = (weights[:, :, None] * xy[tri]).sum(axis=1) / weights.sum(axis=1, keepdims=True)
+    half_h2 = area * ((ht ** 2).sum(axis=1) + ht[:, 0] * ht[:, 1] + ht[:, 1] * ht[:, 2] + ht[:, 0] * ht[:, 2]) / 12.0
+    total = float(volume.sum())
+    return np.array([*((volume[:, None] * centre_xy).sum(axis=0) / total), table_height + half_h2.sum() / total])
 
 
 def _line_velocity(ts: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -294,12 +340,18 @@ class PoseTracker:
             track.history.append(keep)
             note = f"{t - track.t:.1f} s since the last cloud: motion history reset"
         sub = pts if len(pts) <= cfg.icp_points else pts[self._rng.choice(len(pts), cfg.icp_points, replace=False)]
-        fit = None
+        fit, guess = None, None
         for rot, pos in self._guesses(track, t, sub):
             trial = register(sub, track.model, rot, pos, iterations=cfg.icp_iterations, tilt=cfg.tilt)
             if fit is None or trial.inliers > fit.inliers + 0.02:  # the prediction wins a tie
-                fit = trial
-        assert fit is not None
+                fit, guess = trial, (rot, pos)
+        assert fit is not None and guess is not None
+        # a registration that explains the points no better than the last pose is noise: on a view that pins a
+        # rotation or a slide only weakly (a wedge's slope, an object cut by the image's edge) it creeps, and the
+        # twist it makes carries the next guess further
+        still = register(sub, track.model, track.rotation, track.position, iterations=0, tilt=cfg.tilt)
+        if still.inliers >= fit.inliers - HOLD_INLIERS and still.rmse <= HOLD_RMSE * fit.rmse + HOLD_RMSE_ABS:
+            fit, guess = still, (track.rotation, track.position)
         track.confidence = fit.inliers
         if fit.inliers < cfg.min_inliers:
             # the pose and its centroid stay as they were: the next guess adds the whole shift since then
@@ -309,7 +361,10 @@ class PoseTracker:
         track.centroid = pts.mean(axis=0)
         track.rotation, track.position, track.t = fit.rotation, fit.translation, t
         track.history.append((t, fit.translation.copy(), fit.rotation.copy()))
-        if fit.rmse < 0.0025:
+        turn = float(np.linalg.norm(Rotation.from_matrix(fit.rotation @ guess[0].T).as_rotvec()))
+        if fit.rmse < 0.0025 and turn < GROW_TURN and float(np.linalg.norm(fit.translation - guess[1])) < GROW_SHIFT:
+            # new faces join the model only at a pose the motion predicted: points added at a pose that a fit
+            # turned a few degrees off pull the next fits further off (a yaw that ran away by 100 deg in 25 clouds)
             track.model.grow((sub - fit.translation) @ fit.rotation)
         onset = self._onset(track)
         return self._state(track, note), onset
