@@ -59,3 +59,43 @@ def test_an_object_that_leaves_and_returns_is_matched_by_shape():
     other = [type(specs[0])("cylinder", specs[0].x + 0.2, specs[0].y, 0.0, (0.02, 0.02, 0.09))] + away
     got = ids_by_object(tracker, other, 1.5, 2)
     assert got[1:] == first[1:] and got[0] not in first
+
+
+def test_an_object_hidden_past_the_timeout_gets_its_id_back_by_shape():
+    """Past track_timeout an unseen object is lost, not forgotten: within `memory` its id goes to the next object
+    of its shape near where it was (hidden behind another for 3 s), never to another shape; after `memory` the
+    id is retired for good."""
+    specs = list(DEFAULT_OBJECTS)
+    tracker = Tracker(timeout=1.0, memory=10.0)
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    for k, t in enumerate((1.0, 2.0, 3.0)):  # object 0 hidden for 3 s
+        assert ids_by_object(tracker, specs[1:], t, k + 1) == first[1:]
+    assert [i for i, _ in tracker.take_losses()] == [first[0]] and not tracker.take_retired()
+    assert ids_by_object(tracker, specs, 3.5, 4) == first
+    # another shape where a lost object was does not get its id
+    tracker = Tracker(timeout=1.0, memory=10.0)
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    ids_by_object(tracker, specs[1:], 2.0, 1)
+    other = [type(specs[0])("cylinder", specs[0].x, specs[0].y, 0.0, (0.02, 0.02, 0.09))] + specs[1:]
+    got = ids_by_object(tracker, other, 2.5, 2)
+    assert got[1:] == first[1:] and got[0] not in first
+    # past memory the id is retired: the object comes back under a new one
+    tracker = Tracker(timeout=1.0, memory=3.0)
+    first = ids_by_object(tracker, specs, 0.0, 0)
+    ids_by_object(tracker, specs[1:], 2.0, 1)
+    ids_by_object(tracker, specs[1:], 4.0, 2)
+    assert [i for i, _ in tracker.take_retired()] == [first[0]]
+    got = ids_by_object(tracker, specs, 4.5, 3)
+    assert got[1:] == first[1:] and got[0] not in first
+
+
+def test_an_object_whose_cloud_splits_for_one_frame_keeps_its_id():
+    """A sparse object's cluster that splits in two for one cloud starts a young track on one half; when the
+    object is whole again, nearer that young track's last centroid than its own track's, it keeps its old id."""
+    tracker = Tracker()
+    obj, other = np.array([0.0, 0.0, 0.04]), np.array([0.3, 0.0, 0.04])
+    for k in range(20):
+        assert tracker.update([obj, other], k / 15) == ["object_1", "object_2"]
+    halves = tracker.update([obj + [0.02, 0, 0], obj - [0.035, 0, 0], other], 20 / 15)
+    assert halves == ["object_1", "object_3", "object_2"]
+    assert tracker.update([obj - [0.01, 0, 0], other], 21 / 15) == ["object_1", "object_2"]

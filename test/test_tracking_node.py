@@ -148,13 +148,15 @@ def test_the_predictor_runs_on_perception_alone(rclpy_init, tiny_model):
 
 def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_init, tiny_model):
     """Clouds at 5 Hz, an object out of view past track_timeout, a frozen sensor, a gap of several seconds and a
-    clock that goes back: the node keeps the tracks it still sees under their ids, retires the others with the
-    reason on /diagnostics (tracks_retired, last_retirement), and never hands a retired id out again."""
+    clock that goes back: the node keeps the tracks it still sees under their ids, gives a lost object its id back
+    when it returns within track_memory, retires the others with the reason on /diagnostics (tracks_lost,
+    last_loss, tracks_retired, last_retirement), and never hands a retired id out again."""
     camera = tabletop_scene(100).camera
     node = PerceptionNode(parameter_overrides=[
         Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
         Parameter("track_com", value="footprint"), Parameter("sensor_frame", value="cam"),
-        Parameter("sensor_transform", value=camera.as_list()), Parameter("track_timeout", value=2.0)])
+        Parameter("sensor_transform", value=camera.as_list()), Parameter("track_timeout", value=2.0),
+        Parameter("track_memory", value=4.0)])
     k = 0
 
     def cloud(t: float, objects=DEFAULT_OBJECTS) -> list[str]:
@@ -174,22 +176,23 @@ def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_in
         for i in range(12):  # the third object out of view for 2.4 s, still at 5 Hz
             assert cloud(11 + 0.2 * i, DEFAULT_OBJECTS[:2]) == ["object_1", "object_2"]
         d = diagnostics()
-        assert d["tracks_retired"] == 1 and d["last_retirement"].startswith("object_3: not seen for 2."), d
-        assert "timeout 2 s" in d["last_retirement"]
-        assert cloud(13.4) == ["object_1", "object_2", "object_4"]  # back: a new id, object_3 is not reused
+        assert d["tracks_lost"] == 1 and d["last_loss"].startswith("object_3: not seen for 2."), d
+        assert "timeout 2 s" in d["last_loss"] and d["tracks_retired"] == 0
+        assert cloud(13.4) == ["object_1", "object_2", "object_3"]  # back within track_memory: its id again
         assert cloud(13.4) == [] and "not after the previous cloud" in node.tracking_note  # a frozen sensor
-        assert diagnostics()["tracks_retired"] == 1
-        assert cloud(13.6) == ["object_1", "object_2", "object_4"]
-        ids = cloud(18.6)  # a 5 s gap: every track is past the timeout
+        assert diagnostics()["tracks_retired"] == 0
+        assert cloud(13.6) == ["object_1", "object_2", "object_3"]
+        ids = cloud(18.6)  # a 5 s gap, past track_memory: every id is retired
         d = diagnostics()
-        assert d["tracks_retired"] == 4 and "not seen for 5.0 s" in d["last_retirement"], d
-        assert ids == ["object_5", "object_6", "object_7"]
-        assert set(cloud(12.0)) == {"object_8", "object_9", "object_10"}  # the clock went back 6.6 s (a replayed bag)
+        assert d["tracks_retired"] == 3 and "not seen for 5.0 s" in d["last_retirement"], d
+        assert ids == ["object_4", "object_5", "object_6"]
+        assert set(cloud(12.0)) == {"object_7", "object_8", "object_9"}  # the clock went back 6.6 s (a replayed bag)
         d = diagnostics()
-        assert d["tracks_retired"] == 7 and "time went back 6.6 s" in d["last_retirement"], d
+        assert d["tracks_retired"] == 6 and "time went back 6.6 s" in d["last_retirement"], d
         assert node.refused == 0 and node.processed == k  # features from every cloud; never a crash
         assert cloud(14.5, []) == [] and "no object" in node.last_error  # the table emptied: the tracks age
         d = diagnostics()
-        assert d["tracks_retired"] == 10 and d["tracked_objects"] == 0, d
+        assert d["tracks_lost"] == 4 and d["tracked_objects"] == 0 and d["tracks_retired"] == 6, d
+        assert cloud(15.0) == ["object_7", "object_8", "object_9"]  # the objects back within track_memory
     finally:
         node.destroy_node()

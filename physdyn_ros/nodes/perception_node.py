@@ -114,8 +114,10 @@ class PerceptionNode(ManagedNode):
         declare(self, "id_prefix", "object_", "ids of tracked objects (single_object false): <id_prefix><n>")
         declare(self, "track_gate", 0.1, "m, largest distance between an object's predicted and measured centroid "
                 "for it to keep its id", low=0.001, high=10.0)
-        declare(self, "track_timeout", 2.0, "s (cloud stamps) after which an unseen object's id is retired",
-                low=0.0, high=3600.0)
+        declare(self, "track_timeout", 2.0, "s (cloud stamps) after which an unseen object is lost: its id then "
+                "goes only to an object of its shape within 0.5 m", low=0.0, high=3600.0)
+        declare(self, "track_memory", 30.0, "s (cloud stamps) after which a lost object's id is retired (never "
+                "handed out again); not above track_timeout: retired when lost", low=0.0, high=86400.0)
         d = SceneConfig()
         declare(self, "max_points", d.max_points, "clouds with more points are randomly subsampled to this many "
                 "while being read (bounds time and memory)", low=16)
@@ -181,6 +183,8 @@ class PerceptionNode(ManagedNode):
         self.tracking_note = ""  # the last thing pose tracking skipped, and why
         self.retired = 0  # tracks ended (their ids are not handed out again)
         self.last_retirement = ""  # the last one's id and why
+        self.lost = 0  # tracks lost from view (their ids wait track_memory for their shapes)
+        self.last_loss = ""
         self.processed = 0  # clouds that gave at least one feature
         self.published = 0  # features
         self.last_error = ""
@@ -318,7 +322,8 @@ class PerceptionNode(ManagedNode):
         stamp_ns = time_to_ns(msg.header.stamp) or self.get_clock().now().nanoseconds
         t = stamp_ns * 1e-9
         p = self.get_parameter
-        self.tracker.configure(p("id_prefix").value, p("track_gate").value, p("track_timeout").value)
+        self.tracker.configure(p("id_prefix").value, p("track_gate").value, p("track_timeout").value,
+                               p("track_memory").value)
         if not scene.objects:  # the tracks still age: an emptied table retires them
             self.tracker.update(np.zeros((0, 3)), t)
             self._take_retired()
@@ -351,6 +356,10 @@ class PerceptionNode(ManagedNode):
         return features, self.markers(header, labelled), ""
 
     def _take_retired(self) -> None:
+        for object_id, why in self.tracker.take_losses():
+            self.lost += 1
+            self.last_loss = f"{object_id}: {why}"
+            self.get_logger().info(f"track {self.last_loss}; its id waits track_memory for an object of its shape")
         for object_id, why in self.tracker.take_retired():
             self.retired += 1
             self.last_retirement = f"{object_id}: {why}"
@@ -369,9 +378,10 @@ class PerceptionNode(ManagedNode):
         # a pose track goes with its id: retired ids, and an id the id tracker just (re)started (single_object
         # restarts object_id on whatever it sees after losing it), never inherit an old reference
         fresh = {tr.id for tr in self.tracker.tracks if tr.hits == 1}
-        for gone in self.poses.forget([tr.id for tr in self.tracker.tracks if tr.id not in fresh]):
+        keep = [tr.id for tr in self.tracker.tracks if tr.id not in fresh] + [tr.id for tr in self.tracker.lost]
+        for gone in self.poses.forget(keep):
             self.tracking_note = f"{gone}: pose track retired (" + ("id restarted on another detection)" if gone
-                                                                   in fresh else "not seen for track_timeout)")
+                                                                   in fresh else "its id retired)")
         coms = None
         height = float(np.median(heights)) if heights else 0.0
         if self.get_parameter("track_com").value == "model" and self.predictor.estimates_com:
@@ -429,7 +439,8 @@ class PerceptionNode(ManagedNode):
             "features": self.published, "clouds_refused": self.refused, "last_refusal": self.last_error,
             "last_cloud_ms": f"{self.last_ms:.1f}", "tracked_objects": len(self.tracker.tracks),
             "pose_tracks": len(self.poses.tracks), "pushes_detected": self.pushes,
-            "tracks_retired": self.retired, "last_retirement": self.last_retirement,
+            "tracks_retired": self.retired, "last_retirement": self.last_retirement, "tracks_lost": self.lost,
+            "last_loss": self.last_loss,
             "last_tracking_note": self.tracking_note}
 
     def _reject(self, msg: PointCloud2, reason: str) -> None:

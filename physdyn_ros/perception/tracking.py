@@ -18,17 +18,21 @@ Each track keeps the object's last centroid, a velocity estimate and the time it
 detection's distance to a track is the smaller of its distances to that prediction and to the last centroid (the
 object may have stopped since), and detections are matched to tracks by minimum total distance (Hungarian
 assignment) among pairs closer than `gate`. A matched detection keeps the track's id; an unmatched one starts a new
-track with a new id (`<prefix><n>`, n counting from 1 and never reused by this tracker); a track not matched for
-more than `timeout` seconds is retired, so an object that comes back after that gets a new id. Time going backwards
-by more than `timeout` (a bag played again) clears every track.
+track with a new id (`<prefix><n>`, n counting from 1 and never handed to another object by this tracker). A track
+not matched for more than `timeout` seconds is lost: no longer matched by distance, but its id waits `memory`
+seconds for an object of its shape (the second chance below: an object hidden behind another for a few seconds
+comes back under its id); after that, or at once without a shape signature, it is retired and its id is never
+used again. Time going backwards by more than `timeout` (a bag played again) retires every track.
 
 Second chance (when the caller gives each detection's `shape_signature`): a detection left unmatched takes the
-id of an unmatched track within `reach` whose signature agrees (height and x-y spread within `shape_tolerance`,
-relative): a hard push seen at a low cloud rate moves an object beyond the gate in one interval, and an object that
-left the view comes back elsewhere; the signature keeps a different object from inheriting the id.
+id of an unmatched or lost track within `reach` of where that was last seen whose signature agrees (height and x-y
+spread within `shape_tolerance`, relative; unmatched tracks first, then the lost): a hard push seen at a low cloud
+rate moves an object beyond the gate in one interval, and an object that left the view comes back elsewhere; the
+signature keeps a different object from inheriting the id.
 
 Limits: two objects that swap places within one cloud interval get swapped ids; without signatures, an object that
-moves farther than `gate` beyond its predicted position between two clouds gets a new id.
+moves farther than `gate` beyond its predicted position between two clouds gets a new id; two objects of one
+shape (within `shape_tolerance`) can take each other's id when one comes back from being lost.
 """
 from __future__ import annotations
 
@@ -37,6 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: A track matched fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment.
+YOUNG_HITS = 15
+YOUNG_COST = 0.5
 #: Retirements kept for a caller that has not taken them (Tracker.take_retired): the latest ones.
 RETIRED_KEPT = 64
 
@@ -65,30 +72,51 @@ def shape_signature(points: np.ndarray) -> np.ndarray:
 
 class Tracker:
     def __init__(self, prefix: str = "object_", gate: float = 0.1, timeout: float = 2.0,
-                 max_speed: float = 5.0, reach: float = 0.5, shape_tolerance: float = 0.25) -> None:
+                 max_speed: float = 5.0, reach: float = 0.5, shape_tolerance: float = 0.25,
+                 memory: float = 30.0) -> None:
         self.prefix, self.gate, self.timeout, self.max_speed = prefix, float(gate), float(timeout), float(max_speed)
-        self.reach, self.shape_tolerance = float(reach), float(shape_tolerance)
+        self.reach, self.shape_tolerance, self.memory = float(reach), float(shape_tolerance), float(memory)
         self.tracks: list[Track] = []
+        self.lost: list[Track] = []  # not seen for longer than timeout; their ids wait for their shapes
+        # (id, why) of the tracks lost since the caller last took them (the latest RETIRED_KEPT)
+        self.losses: deque[tuple[str, str]] = deque(maxlen=RETIRED_KEPT)
         self.count = 0  # ids handed out so far
         # (id, why) of the tracks ended since the caller last took them (the latest RETIRED_KEPT)
         self.retired: deque[tuple[str, str]] = deque(maxlen=RETIRED_KEPT)
         self._last_t: float | None = None
 
-    def configure(self, prefix: str, gate: float, timeout: float) -> None:
+    def configure(self, prefix: str, gate: float, timeout: float, memory: float | None = None) -> None:
         """New settings (parameters changed at run time); a new prefix applies to new tracks only."""
         self.prefix, self.gate, self.timeout = prefix, float(gate), float(timeout)
+        if memory is not None:
+            self.memory = float(memory)
 
     def _age(self, t: float) -> None:
         if self._last_t is not None and t < self._last_t - self.timeout:
             # time went backwards: a replayed bag, a reset sim clock
             why = f"time went back {self._last_t - t:.1f} s (a replayed bag, a reset clock)"
-            self.retired += [(tr.id, why) for tr in self.tracks]
+            self.retired += [(tr.id, why) for tr in self.tracks + self.lost]
             self.tracks.clear()
+            self.lost.clear()
             self._last_t = t
         self._last_t = t if self._last_t is None else max(self._last_t, t)
-        self.retired += [(tr.id, f"not seen for {t - tr.last_seen:.1f} s (timeout {self.timeout:g} s)")
-                         for tr in self.tracks if t - tr.last_seen > self.timeout]
+        for tr in [tr for tr in self.tracks if t - tr.last_seen > self.timeout]:
+            why = f"not seen for {t - tr.last_seen:.1f} s (timeout {self.timeout:g} s)"
+            if tr.signature is not None and self.memory > t - tr.last_seen:
+                self.lost.append(tr)
+                self.losses.append((tr.id, why))
+            else:
+                self.retired.append((tr.id, why))
         self.tracks = [tr for tr in self.tracks if t - tr.last_seen <= self.timeout]
+        self.retired += [(tr.id, f"not seen for {t - tr.last_seen:.1f} s (lost, track_memory {self.memory:g} s)")
+                         for tr in self.lost if t - tr.last_seen > self.memory]
+        self.lost = [tr for tr in self.lost if t - tr.last_seen <= self.memory]
+
+    def take_losses(self) -> list[tuple[str, str]]:
+        """(id, why) of every track lost since the last call, oldest first."""
+        out = list(self.losses)
+        self.losses.clear()
+        return out
 
     def take_retired(self) -> list[tuple[str, str]]:
         """(id, why) of every track ended since the last call, oldest first; an ended id is never handed out
@@ -108,7 +136,10 @@ class Tracker:
         dist = np.minimum(np.linalg.norm(centroids[:, None, :] - pred[None, :, :], axis=2),
                           np.linalg.norm(centroids[:, None, :] - last[None, :, :], axis=2))
         big = 1e6
-        rows, cols = linear_sum_assignment(np.where(dist <= self.gate, dist, big))
+        # an established track wins over a young one at a similar distance: a sparse object's cloud that splits
+        # for one frame starts a young track on one half, which must not take the whole object's id next frame
+        young = np.array([YOUNG_COST * self.gate if tr.hits < YOUNG_HITS else 0.0 for tr in self.tracks])
+        rows, cols = linear_sum_assignment(np.where(dist <= self.gate, dist + young[None, :], big))
         return {int(r): int(c) for r, c in zip(rows, cols) if dist[r, c] <= self.gate}
 
     def _update(self, tr: Track, c: np.ndarray, t: float) -> None:
@@ -129,19 +160,23 @@ class Tracker:
         return tr
 
     def _rematch(self, c: np.ndarray, sig: np.ndarray, matched: dict[int, int]) -> dict[int, int]:
-        """The second chance of the module docstring: unmatched detection index -> unmatched track index."""
+        """The second chance of the module docstring: unmatched detection index -> unmatched track index.
+        Indices from len(self.tracks) on are the lost tracks'."""
         from scipy.optimize import linear_sum_assignment
 
         dets = [i for i in range(len(c)) if i not in matched]
         taken = set(matched.values())
-        free = [j for j, tr in enumerate(self.tracks) if j not in taken and tr.signature is not None]
+        pool = self.tracks + self.lost
+        free = [j for j, tr in enumerate(pool) if j not in taken and tr.signature is not None]
         if not dets or not free:
             return {}
-        dist = np.linalg.norm(c[dets][:, None, :] - np.array([self.tracks[j].centroid for j in free])[None], axis=2)
-        ref = np.array([self.tracks[j].signature for j in free])
+        dist = np.linalg.norm(c[dets][:, None, :] - np.array([pool[j].centroid for j in free])[None], axis=2)
+        ref = np.array([pool[j].signature for j in free])
         rel = np.abs(sig[dets][:, None, :] - ref[None]) / np.maximum(ref[None], 0.01)
         ok = (dist <= self.reach) & (rel.max(axis=2) <= self.shape_tolerance)
-        rows, cols = linear_sum_assignment(np.where(ok, dist, 1e6))
+        # a live track beats a lost one: a lost track's distance counts after every live one's
+        cost = dist + np.array([self.reach if j >= len(self.tracks) else 0.0 for j in free])[None]
+        rows, cols = linear_sum_assignment(np.where(ok, cost, 1e6))
         return {dets[r]: free[k] for r, k in zip(rows, cols) if ok[r, k]}
 
     def update(self, centroids, t: float, signatures=None) -> list[str]:
@@ -152,10 +187,14 @@ class Tracker:
         self._age(t)
         matched = self._match(c, t)
         again = self._rematch(c, sig, matched) if sig is not None else {}
+        pool = self.tracks + self.lost
+        back = [pool[j] for j in again.values() if j >= len(self.tracks)]
+        self.lost = [tr for tr in self.lost if all(tr is not b for b in back)]
+        self.tracks += back
         ids = []
         for i in range(len(c)):
             if i in matched or i in again:
-                tr = self.tracks[matched[i] if i in matched else again[i]]
+                tr = pool[matched[i] if i in matched else again[i]]
                 if i in again:  # a jump, not a velocity: the constant-velocity prediction starts over
                     tr.centroid, tr.velocity = c[i], np.zeros(3)
                 self._update(tr, c[i], t)
