@@ -99,3 +99,6 @@ def test_an_object_whose_cloud_splits_for_one_frame_keeps_its_id():
     halves = tracker.update([obj + [0.02, 0, 0], obj - [0.035, 0, 0], other], 20 / 15)
     assert halves == ["object_1", "object_3", "object_2"]
     assert tracker.update([obj - [0.01, 0, 0], other], 21 / 15) == ["object_1", "object_2"]
+    # the half's track is a second track on object_1's object: dropped, not left to take the object later
+    assert sorted(tr.id for tr in tracker.tracks) == ["object_1", "object_2"]
+    assert tracker.take_retired() == [("object_3", "a second track on the object of object_1")]

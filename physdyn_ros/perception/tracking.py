@@ -30,6 +30,10 @@ spread within `shape_tolerance`, relative; unmatched tracks first, then the lost
 rate moves an object beyond the gate in one interval, and an object that left the view comes back elsewhere; the
 signature keeps a different object from inheriting the id.
 
+Duplicates: a track seen fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment, and an
+unmatched track within DUPLICATE gates of a detection an older track took is lost (a sparse object's cluster that
+splits for one cloud starts a second track on one half, which would otherwise take the object every other cloud).
+
 Limits: two objects that swap places within one cloud interval get swapped ids; without signatures, an object that
 moves farther than `gate` beyond its predicted position between two clouds gets a new id; two objects of one
 shape (within `shape_tolerance`) can take each other's id when one comes back from being lost.
@@ -44,6 +48,8 @@ import numpy as np
 #: A track matched fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment.
 YOUNG_HITS = 15
 YOUNG_COST = 0.5
+#: An unmatched track this many gates from a detection an older track took is a duplicate of that track.
+DUPLICATE = 0.5
 #: Retirements kept for a caller that has not taken them (Tracker.take_retired): the latest ones.
 RETIRED_KEPT = 64
 
@@ -179,6 +185,36 @@ class Tracker:
         rows, cols = linear_sum_assignment(np.where(ok, cost, 1e6))
         return {dets[r]: free[k] for r, k in zip(rows, cols) if ok[r, k]}
 
+    def _drop_duplicates(self, c: np.ndarray, t: float, matched: dict[int, int]) -> None:
+        """An unmatched track within DUPLICATE gates of a detection that an older track took is a second track on
+        one object (started on half of a split cluster): it is lost (its id may still come back by shape; retired
+        without a signature) instead of taking the object every other cloud. matched (detection -> track index)
+        is re-indexed in place."""
+        taken = set(matched.values())
+        owner: dict[int, str] = {}  # duplicate track index -> the id of the track that has its object
+        for j, tr in enumerate(self.tracks):
+            if j in taken:
+                continue
+            for i, k in matched.items():
+                near = min(float(np.linalg.norm(c[i] - tr.centroid)), float(np.linalg.norm(c[i] - tr.predict(t))))
+                if near <= DUPLICATE * self.gate and self.tracks[k].hits > tr.hits:
+                    owner[j] = self.tracks[k].id
+                    break
+        if not owner:
+            return
+        for j, other in owner.items():
+            tr, why = self.tracks[j], f"a second track on the object of {other}"
+            if tr.signature is not None:
+                self.lost.append(tr)
+                self.losses.append((tr.id, why))
+            else:
+                self.retired.append((tr.id, why))
+        keep = [j for j in range(len(self.tracks)) if j not in owner]
+        index = {old: new for new, old in enumerate(keep)}
+        self.tracks = [self.tracks[j] for j in keep]
+        for i in matched:
+            matched[i] = index[matched[i]]
+
     def update(self, centroids, t: float, signatures=None) -> list[str]:
         """Ids of the detections (centroids (K, 3), m) seen at time t (s), in their order. signatures: (K, 3)
         shape_signature of each detection (optional: enables the second chance)."""
@@ -186,6 +222,7 @@ class Tracker:
         sig = None if signatures is None else np.asarray(signatures, dtype=np.float64).reshape(-1, 3)
         self._age(t)
         matched = self._match(c, t)
+        self._drop_duplicates(c, t, matched)
         again = self._rematch(c, sig, matched) if sig is not None else {}
         pool = self.tracks + self.lost
         back = [pool[j] for j in again.values() if j >= len(self.tracks)]
