@@ -207,6 +207,9 @@ def test_column_com_fills_the_view_down_to_the_table():
     np.testing.assert_allclose(column_com(slope), [0.05 - 0.1 / 3, 0.0, 0.08 / 3], atol=0.0015)
     np.testing.assert_allclose(column_com(slope + [0, 0, 0.7], table_height=0.7), [0.05 - 0.1 / 3, 0.0, 0.7 + 0.08 / 3],
                                atol=0.0015)
+    # points at or below the table (its edge left by the plane removal) give flat triangles, not NaN
+    flat = np.r_[slope, np.c_[rng.uniform(-0.08, -0.06, 50), rng.uniform(-0.03, 0.03, 50), np.zeros(50)]]
+    assert np.all(np.isfinite(column_com(flat)))
 
 
 def test_at_rest_the_pose_holds_where_the_fit_is_no_better():

@@ -177,6 +177,7 @@ def column_com(points: np.ndarray, table_height: float = 0.0, cell: float = 0.00
     # a column with a linear top: its x-y centroid weights corner i by (h0 + h1 + h2 + h_i), its z centroid is
     # the integral of h^2 / 2 over the triangle
     weights = ht.sum(axis=1, keepdims=True) + ht
+    weights[weights.sum(axis=1) <= 0.0] = 1.0  # a flat triangle on the table: no volume, any finite centre
     centre_xy = (weights[:, :, None] * xy[tri]).sum(axis=1) / weights.sum(axis=1, keepdims=True)
     half_h2 = area * ((ht ** 2).sum(axis=1) + ht[:, 0] * ht[:, 1] + ht[:, 1] * ht[:, 2] + ht[:, 0] * ht[:, 2]) / 12.0
     total = float(volume.sum())
