@@ -107,16 +107,21 @@ class Tracker:
             self._last_t = t
         self._last_t = t if self._last_t is None else max(self._last_t, t)
         for tr in [tr for tr in self.tracks if t - tr.last_seen > self.timeout]:
-            why = f"not seen for {t - tr.last_seen:.1f} s (timeout {self.timeout:g} s)"
-            if tr.signature is not None and self.memory > t - tr.last_seen:
-                self.lost.append(tr)
-                self.losses.append((tr.id, why))
-            else:
-                self.retired.append((tr.id, why))
+            self._lose(tr, f"not seen for {t - tr.last_seen:.1f} s (timeout {self.timeout:g} s)",
+                       keep=self.memory > t - tr.last_seen)
         self.tracks = [tr for tr in self.tracks if t - tr.last_seen <= self.timeout]
         self.retired += [(tr.id, f"not seen for {t - tr.last_seen:.1f} s (lost, track_memory {self.memory:g} s)")
                          for tr in self.lost if t - tr.last_seen > self.memory]
         self.lost = [tr for tr in self.lost if t - tr.last_seen <= self.memory]
+
+    def _lose(self, tr: Track, why: str, keep: bool = True) -> None:
+        """A track leaves the live list: lost (its id waits for its shape) when it has a signature and keep
+        allows, else retired. The caller removes it from self.tracks."""
+        if tr.signature is not None and keep:
+            self.lost.append(tr)
+            self.losses.append((tr.id, why))
+        else:
+            self.retired.append((tr.id, why))
 
     def take_losses(self) -> list[tuple[str, str]]:
         """(id, why) of every track lost since the last call, oldest first."""
@@ -203,12 +208,7 @@ class Tracker:
         if not owner:
             return
         for j, other in owner.items():
-            tr, why = self.tracks[j], f"a second track on the object of {other}"
-            if tr.signature is not None:
-                self.lost.append(tr)
-                self.losses.append((tr.id, why))
-            else:
-                self.retired.append((tr.id, why))
+            self._lose(self.tracks[j], f"a second track on the object of {other}")
         keep = [j for j in range(len(self.tracks)) if j not in owner]
         index = {old: new for new, old in enumerate(keep)}
         self.tracks = [self.tracks[j] for j in keep]
