@@ -278,7 +278,7 @@ def main() -> int:
     ap.add_argument("--rest-seconds", type=float, default=60.0)
     ap.add_argument("--resolution", type=int, nargs=2, default=(320, 240))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--track-com", choices=("model", "footprint"), default="model",
+    ap.add_argument("--track-com", choices=("footprint", "model"), default="footprint",
                     help="the perception node's track_com (where a track's centre of mass is taken)")
     ap.add_argument("--goals", type=int, default=16,
                     help="push_to_goal trials, each run with state_source perception and sim (0: none)")

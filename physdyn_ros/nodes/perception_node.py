@@ -49,7 +49,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..conventions import TABLE_FRAME
 from ..msg import ObjectState, ShapeFeature
 from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
-from ..perception.pose_tracking import COM_SOURCES, PoseConfig, PoseTracker, TrackedState, column_com
+from ..perception.pose_tracking import COM_SOURCES, PoseConfig, PoseTracker, TrackedState, footprint_com
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
 from ..perception.scene import random_rows
 from ..perception.tracking import shape_signature
@@ -157,10 +157,10 @@ class PerceptionNode(ManagedNode):
         t = PoseConfig()
         declare(self, "track_poses", True, "publish each tracked object's pose and twist on tracked_state and its "
                 "state at a push's onset on initial_state")
-        declare(self, "track_com", "model", "centre of mass of a new track's reference: 'model' = the encoder's "
-                "centre-of-mass head in x-y and the height of the solid under the view's surface (the footprint "
-                "estimate for models without a head), 'footprint' = the middle of "
-                "the top faces' footprint, half-way up", choices=COM_SOURCES)
+        declare(self, "track_com", "footprint", "centre of mass of a new track's reference: 'footprint' = the "
+                "view's geometry before outlier removal (the top faces' outline where they span the footprint, "
+                "else the solid under the view's surface), 'model' = the encoder's centre-of-mass head in x-y "
+                "(the footprint for models without a head)", choices=COM_SOURCES)
         declare(self, "track_tilt", t.tilt, "register in 6 degrees of freedom; false: yaw and translation only "
                 "(objects that stay upright)")
         declare(self, "track_onset_distance", t.onset_distance, "m from the rest pose: the object moves (a push)",
@@ -382,12 +382,15 @@ class PerceptionNode(ManagedNode):
         for gone in self.poses.forget(keep):
             self.tracking_note = f"{gone}: pose track retired (" + ("id restarted on another detection)" if gone
                                                                    in fresh else "its id retired)")
-        coms = None
         height = float(np.median(heights)) if heights else 0.0
+        new = [(object_id, obj, code) for (object_id, obj), code in zip(labelled, codes)
+               if object_id not in self.poses.tracks]
+        # the points before outlier removal: the filter trims a top face's far edge, the outline needs it
+        coms = {object_id: footprint_com(obj.cluster if obj.cluster is not None else obj.points, height)
+                for object_id, obj, _ in new}
         if self.get_parameter("track_com").value == "model" and self.predictor.estimates_com:
             # the head's x-y; the height of the solid under the view (the head's is 4 mm high in the median)
-            coms = {object_id: np.array([*code.centroid[:2], column_com(obj.points, height)[2]])
-                    for (object_id, obj), code in zip(labelled, codes) if object_id not in self.poses.tracks}
+            coms = {object_id: np.array([*code.centroid[:2], coms[object_id][2]]) for object_id, _, code in new}
         update = self.poses.update(t, [(object_id, obj.points) for object_id, obj in labelled], coms, height)
         if update.notes:
             self.tracking_note = update.notes[-1]

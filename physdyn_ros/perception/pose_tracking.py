@@ -15,8 +15,8 @@
 
 Per tracked object (its id from tracking.Tracker):
 * reference: when first seen, its points become an `ObjectModel` (registration.py) in the object's frame, whose
-  origin is the centre-of-mass estimate (given by the caller: the perception node takes the encoder's
-  centre-of-mass head in x-y and `column_com`'s height; else the footprint estimate `footprint_com`) and whose
+  origin is the centre-of-mass estimate (given by the caller: the perception node's `footprint_com` of the
+  object's points before outlier removal by default; without one, `footprint_com` of the points) and whose
   axes are the table's at that instant: the published orientation is the rotation since the reference was
   captured (identity then), as Predictor.rollout takes orientations;
 * pose at every cloud: the object's points registered to the model (point-to-plane ICP) from the
@@ -55,9 +55,11 @@ from scipy.spatial.transform import Rotation
 from .registration import ObjectModel, register
 
 G = 9.81  # m/s^2
-#: Where a new track's centre of mass comes from (the perception node's track_com): the encoder's centre-of-mass
-#: head, or footprint_com.
-COM_SOURCES = ("model", "footprint")
+#: Where a new track's centre of mass comes from (the perception node's track_com): footprint_com, or the
+#: encoder's centre-of-mass head.
+COM_SOURCES = ("footprint", "model")
+#: footprint_com takes the top faces' outline for the footprint where they span this share of the view's outline
+TOP_SPAN = 0.7
 
 
 @dataclass
@@ -122,30 +124,40 @@ class PoseUpdate:
 
 
 def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
-    """Centre-of-mass estimate of an upright object from a partial view: the area centroid of the convex hull of
-    the x-y projection of its top faces (a camera above the table sees them whole: they span the footprint of a
-    prism, a box or a cylinder standing on the table), and half-way
-    between the table and the top (the median height of the points within 5 mm of the highest)."""
-    from scipy.spatial import ConvexHull, QhullError
-
+    """Centre-of-mass estimate of an upright object from a partial view. x-y: the area centroid of the convex hull
+    of the x-y projection of its top faces (the points within 5 mm of the highest) when that hull spans at least
+    TOP_SPAN of the whole view's (a box, a cylinder, a prism standing on the table: the camera sees the top whole
+    and it is the footprint); else, where the top is an edge or a point (a wedge, a pyramid), column_com's. The
+    height is column_com's (half the top's for a prism, a third for a wedge)."""
     pts = np.asarray(points, dtype=np.float64)
+    column = column_com(pts, table_height)
     z = pts[:, 2]
     band = z >= np.percentile(z, 99.5) - 0.005
-    top = float(np.median(z[band]))
+    if band.sum() < 20:
+        return column
     # the top faces only: the side faces the camera sees lie on the footprint's near edge, densely, while its
-    # far edge is sampled by the top face alone, which would pull the hull's centroid towards the camera
-    xy = pts[band, :2] if band.sum() >= 20 else pts[:, :2]
+    # far edge is sampled by the top face alone, which would pull the centroid of every point towards the camera
+    top, whole = _hull_centroid(pts[band, :2]), _hull_centroid(pts[:, :2])
+    if top is None or whole is None or top[1] < TOP_SPAN * whole[1]:
+        return column
+    return np.array([top[0][0], top[0][1], column[2]])
+
+
+def _hull_centroid(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Area centroid and area of the convex hull of 2-D points; None when they span no area."""
+    from scipy.spatial import ConvexHull, QhullError
+
     try:
         ring = xy[ConvexHull(xy).vertices]
-        x, y = ring[:, 0], ring[:, 1]
-        xn, yn = np.roll(x, -1), np.roll(y, -1)
-        cross = x * yn - xn * y
-        area = cross.sum() / 2.0
-        centre = (np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
-                  if abs(area) > 1e-9 else xy.mean(axis=0))
     except (QhullError, ValueError):
-        centre = xy.mean(axis=0)
-    return np.array([centre[0], centre[1], 0.5 * (top + table_height)])
+        return None
+    x, y = ring[:, 0], ring[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2.0
+    if abs(area) <= 1e-9:
+        return None
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area), float(abs(area))
 
 
 def column_com(points: np.ndarray, table_height: float = 0.0, cell: float = 0.003) -> np.ndarray:

@@ -126,9 +126,12 @@ class TablePlane:
 
 @dataclass
 class SceneObject:
-    """One object: its points (table frame, float64) after outlier removal."""
+    """One object: its points (table frame, float64) after outlier removal, and the same sample before it
+    (`cluster`): the filter trims the far edge of a top face, which the camera samples sparsest, and a centre of
+    mass taken from the view's outline needs it."""
 
     points: np.ndarray
+    cluster: np.ndarray | None = None
 
     @property
     def centroid(self) -> np.ndarray:
@@ -399,12 +402,12 @@ def segment(points: np.ndarray, cfg: SceneConfig, to_table: RigidTransform | Non
         if len(scene.objects) >= cfg.max_objects:
             scene.dropped.append(f"a cluster of {len(obj)} points beyond max_objects {cfg.max_objects}")
             continue
-        obj = random_rows(obj, cfg.object_points, rng)
-        obj = obj[outlier_mask(obj, cfg.outlier_neighbors, cfg.outlier_std_ratio)]
+        sample = random_rows(obj, cfg.object_points, rng)
+        obj = sample[outlier_mask(sample, cfg.outlier_neighbors, cfg.outlier_std_ratio)]
         if len(obj) < cfg.min_points:
             few += 1
             continue
-        scene.objects.append(SceneObject(obj))
+        scene.objects.append(SceneObject(obj, sample))
     if small:
         scene.dropped.append(f"{small} cluster(s) of fewer than min_points {cfg.min_points} points")
     if few:
