@@ -383,15 +383,17 @@ class PerceptionNode(ManagedNode):
             self.tracking_note = f"{gone}: pose track retired (" + ("id restarted on another detection)" if gone
                                                                    in fresh else "its id retired)")
         height = float(np.median(heights)) if heights else 0.0
-        new = [(object_id, obj, code) for (object_id, obj), code in zip(labelled, codes)
-               if object_id not in self.poses.tracks]
-        # the points before outlier removal: the filter trims a top face's far edge, the outline needs it
-        coms = {object_id: footprint_com(obj.cluster if obj.cluster is not None else obj.points, height)
-                for object_id, obj, _ in new}
-        if self.get_parameter("track_com").value == "model" and self.predictor.estimates_com:
-            # the head's x-y; the height of the solid under the view (the head's is 4 mm high in the median)
-            coms = {object_id: np.array([*code.centroid[:2], coms[object_id][2]]) for object_id, _, code in new}
-        update = self.poses.update(t, [(object_id, obj.points) for object_id, obj in labelled], coms, height)
+        seen = {object_id: (obj, code) for (object_id, obj), code in zip(labelled, codes)}
+        head = self.get_parameter("track_com").value == "model" and self.predictor.estimates_com
+
+        def com_of(object_id: str, points: np.ndarray) -> np.ndarray:
+            obj, code = seen[object_id]
+            # the points before outlier removal: the filter trims a top face's far edge, the outline needs it
+            com = footprint_com(obj.cluster if obj.cluster is not None else points, height)
+            # 'model': the head's x-y; the height of the solid under the view (the head's is 4 mm high)
+            return np.array([*code.centroid[:2], com[2]]) if head else com
+
+        update = self.poses.update(t, [(object_id, obj.points) for object_id, obj in labelled], com_of, height)
         if update.notes:
             self.tracking_note = update.notes[-1]
         self.states = [self.state_msg(s, header) for s in update.states]

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,7 +59,7 @@ G = 9.81  # m/s^2
 #: Where a new track's centre of mass comes from (the perception node's track_com): footprint_com, or the
 #: encoder's centre-of-mass head.
 COM_SOURCES = ("footprint", "model")
-#: footprint_com takes the top faces' outline for the footprint where they span this share of the view's outline
+#: footprint_com takes the top faces' outline for the footprint where its area is this share of the view's outline's
 TOP_SPAN = 0.7
 
 
@@ -125,10 +126,11 @@ class PoseUpdate:
 
 def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
     """Centre-of-mass estimate of an upright object from a partial view. x-y: the area centroid of the convex hull
-    of the x-y projection of its top faces (the points within 5 mm of the highest) when that hull spans at least
-    TOP_SPAN of the whole view's (a box, a cylinder, a prism standing on the table: the camera sees the top whole
-    and it is the footprint); else, where the top is an edge or a point (a wedge, a pyramid), column_com's. The
-    height is column_com's (half the top's for a prism, a third for a wedge)."""
+    of the x-y projection of its top faces (the points within 5 mm of the top, the 99.5th percentile of the heights:
+    a stray point above it does not count) when that hull's area is at least TOP_SPAN of the whole view's (a box, a
+    cylinder, a prism standing on the table: the camera sees the top whole and it is the footprint); else, where
+    the top is an edge or a point (a wedge, a pyramid), column_com's. The height is column_com's (half the top's for
+    a prism, a third for a wedge)."""
     pts = np.asarray(points, dtype=np.float64)
     column = column_com(pts, table_height)
     z = pts[:, 2]
@@ -289,9 +291,11 @@ class PoseTracker:
             del self.tracks[k]
         return gone
 
-    def update(self, t: float, detections, coms: dict | None = None, table_height: float = 0.0) -> PoseUpdate:
-        """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). coms: object_id ->
-        centre-of-mass estimate (3,) used when a track's reference is captured (default: footprint_com)."""
+    def update(self, t: float, detections, com_of: Callable[[str, np.ndarray], np.ndarray] | None = None,
+               table_height: float = 0.0) -> PoseUpdate:
+        """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). com_of(object_id,
+        points): the centre-of-mass estimate (3,) of a track whose reference is captured, on a first sighting or
+        after a reset (default: footprint_com of its points)."""
         out = PoseUpdate()
         if self._last_t is not None and t < self._last_t - self.config.max_gap:
             out.notes.append(f"time went back from {self._last_t:.3f} s to {t:.3f} s (a replayed bag, a reset clock): "
@@ -309,9 +313,8 @@ class PoseTracker:
                 continue
             track = self.tracks.get(object_id)
             if track is None:
-                com = (coms or {}).get(object_id)
-                track = self._capture(object_id, pts, t, footprint_com(pts, table_height) if com is None
-                                      else np.asarray(com, dtype=np.float64))
+                com = footprint_com(pts, table_height) if com_of is None else com_of(object_id, pts)
+                track = self._capture(object_id, pts, t, np.asarray(com, dtype=np.float64))
                 out.states.append(self._state(track, "reference captured"))
                 continue
             state, onset = self._step(track, pts, t)

@@ -126,9 +126,10 @@ class TablePlane:
 
 @dataclass
 class SceneObject:
-    """One object: its points (table frame, float64) after outlier removal, and the same sample before it
-    (`cluster`): the filter trims the far edge of a top face, which the camera samples sparsest, and a centre of
-    mass taken from the view's outline needs it."""
+    """One object: its points (table frame, float64) after outlier removal, and the same sample of at most
+    `object_points` before it (`cluster`; None where the object was made without one): the filter trims the far
+    edge of a top face, which the camera samples sparsest, and a centre of mass taken from the view's outline
+    needs it."""
 
     points: np.ndarray
     cluster: np.ndarray | None = None
