@@ -29,8 +29,9 @@ TINY_STATS = {"vel": 1.0, "angvel": 3.0, "d_vel": 0.02, "d_angvel": 0.05, "d_pos
               "cloud": 0.05}
 
 
-def make_tiny_checkpoint(path: Path, seed: int = 0, name: str = "tiny-test") -> str:
-    """A randomly initialised, small model saved with the learn package's own checkpoint writer."""
+def make_tiny_checkpoint(path: Path, seed: int = 0, name: str = "tiny-test", com_head: bool = False) -> str:
+    """A randomly initialised, small model saved with the learn package's own checkpoint writer (com_head: with a
+    centre-of-mass head, like the shipped model's)."""
     import torch
 
     from physdyn_ros.learn.checkpoint import save_checkpoint
@@ -38,7 +39,7 @@ def make_tiny_checkpoint(path: Path, seed: int = 0, name: str = "tiny-test") -> 
 
     torch.manual_seed(seed)
     cfg = ModelConfig(name=name, num_points=128, pointnet=(16, 32), shape_mlp=(16, 16), hidden_size=32,
-                      num_layers=1)
+                      num_layers=1, com_head=com_head)
     return save_checkpoint(path, model=DynamicsModel(cfg, TINY_STATS), config={"model": cfg.to_dict()},
                            dataset={}, include_rng=False)
 

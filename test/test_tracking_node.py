@@ -227,3 +227,32 @@ def test_a_new_track_takes_its_centre_of_mass_from_the_untrimmed_view(rclpy_init
     finally:
         node.destroy_node()
     assert max(errors) < 0.005, np.round(1e3 * np.array(errors), 1)
+
+
+def test_track_com_model_takes_the_heads_x_y_and_the_views_height(rclpy_init, tmp_path):
+    """track_com model with a model that has a centre-of-mass head: a new track starts at the head's x-y (the
+    feature's centroid) and the height of the solid under the view (a 6 cm box: 3 cm)."""
+    from physdyn_ros.shapes import resolve_shape
+    from physdyn_ros.sim import SimConfig, Simulator
+    from physdyn_ros.sim.camera import CameraSpec, DepthCamera
+    from test_nodes_support import make_tiny_checkpoint
+
+    path = tmp_path / "head.pt"
+    make_tiny_checkpoint(path, com_head=True)
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(path)), Parameter("single_object", value=False),
+        Parameter("voxel_size", value=0.005), Parameter("track_com", value="model")])
+    spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), (320, 240), 60.0)
+    try:
+        assert node.predictor.estimates_com
+        with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
+            sim.spawn(resolve_shape("box", 9001), xy=(0.05, -0.2), yaw=0.7, object_id="a")
+            points = DepthCamera(sim).render(spec)
+            truth = np.asarray(sim.states()["a"][0])
+        features, _, reason = node.process(xyz_to_cloud(points, "world", ns_to_time(10**9)))
+        assert len(features) == 1 and len(node.states) == 1, reason
+        state, feature = node.states[0], features[0]
+        assert state.pose.position.x == feature.centroid.x and state.pose.position.y == feature.centroid.y
+        assert abs(state.pose.position.z - truth[2]) < 0.003, (state.pose.position.z, truth[2])
+    finally:
+        node.destroy_node()
