@@ -39,6 +39,8 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     miss one cloud's sample without losing its id);
   * perception's cost per 100k-point cloud with three objects (p50 CPU time of one thread; the node's test
     scene), and the sim's rendering and processing time per camera cloud (p50 wall).
+  * with --depth-noise / --flying-pixels every camera cloud first gets a depth camera's errors (sensor_noise),
+    which the sim's renderer lacks;
   * push_to_goal (--goals trials, 0 for none): the four nodes in this process on the sim's 15 Hz camera clouds, one
     object of a family or seed no model was trained on, a goal 10-18 cm away (tolerance 3 cm, any yaw, up to 3
     pushes), run once with the suite's state_source perception overlay and once with sim on the same shape, spawn
@@ -108,6 +110,20 @@ def free_push(sim, rng: np.random.Generator, radii: dict[str, float]) -> tuple[s
         if clear and np.all(np.abs(path[-1]) < VIEW):
             return oid, np.array([speed * d[0], speed * d[1], 0.0])
     raise RuntimeError("no push keeps clear of the other objects: the objects crowd the table")
+
+
+def sensor_noise(points: np.ndarray, eye, rng: np.random.Generator, depth_noise: float,
+                 flying: float) -> np.ndarray:
+    """A depth camera's errors on exact rendered points: Gaussian noise along each ray, depth_noise (m) at 1 m
+    range growing with the range squared, and a share `flying` of the points moved 1-6 cm farther along their ray
+    (mixed pixels; the renderer has neither)."""
+    ray = points - np.asarray(eye, dtype=np.float64)
+    rng_m = np.linalg.norm(ray, axis=1, keepdims=True)
+    unit = ray / np.maximum(rng_m, 1e-9)
+    out = points + unit * (depth_noise * rng_m ** 2 * rng.standard_normal((len(points), 1)))
+    moved = rng.random(len(points)) < flying
+    out[moved] += unit[moved] * rng.uniform(0.01, 0.06, (int(moved.sum()), 1))
+    return out
 
 
 def perception_100k_ms() -> float:
@@ -282,8 +298,16 @@ def main() -> int:
                     help="the perception node's track_com (where a track's centre of mass is taken)")
     ap.add_argument("--goals", type=int, default=16,
                     help="push_to_goal trials, each run with state_source perception and sim (0: none)")
+    ap.add_argument("--depth-noise", type=float, default=0.0,
+                    help="m: Gaussian depth noise along each ray at 1 m range, growing with the range squared (the "
+                         "sim's renderer is exact)")
+    ap.add_argument("--flying-pixels", type=float, default=0.0,
+                    help="share of each cloud's points moved 1-6 cm farther along their ray (mixed pixels)")
     ap.add_argument("--verbose", action="store_true", help="a line per push and per goal trial")
     args = ap.parse_args()
+    if not (math.isfinite(args.depth_noise) and args.depth_noise >= 0.0 and 0.0 <= args.flying_pixels <= 1.0):
+        ap.error(f"--depth-noise must be >= 0 m and --flying-pixels within [0, 1], got {args.depth_noise:g} and "
+                 f"{args.flying_pixels:g}")
 
     import rclpy
     import torch
@@ -301,6 +325,7 @@ def main() -> int:
     torch.set_num_threads(1)
     rclpy.init()
     rng = np.random.default_rng(args.seed)
+    noise_rng = np.random.default_rng([args.seed, 1])  # its own stream: the pushes stay those of the exact run
     # the perception node as `physdyn up --state-source perception` runs it (its overlay's perception settings)
     overlay = parse_overrides("perception", state_source_overlay("perception").get("perception", []))
     node = PerceptionNode(parameter_overrides=[Parameter("single_object", value=False),
@@ -337,6 +362,8 @@ def main() -> int:
             truth.append({oid: tuple(np.asarray(a, float) for a in s) for oid, s in sim.states().items()})
             t0 = time.perf_counter()
             points = camera.render(spec)
+            if args.depth_noise > 0 or args.flying_pixels > 0:
+                points = sensor_noise(points, spec.eye, noise_rng, args.depth_noise, args.flying_pixels)
             n_points.append(len(points))
             msg = xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS))
             feats, _, _ = node.process(msg)
@@ -445,6 +472,7 @@ def main() -> int:
         "perception_p50_ms_100k": round(cost, 2), "camera_frame_p50_ms": med(frame_ms),
         "points_per_cloud": med(n_points), "push_to_goal_success_perception": goal_success.get("perception"),
         "push_to_goal_success_truth": goal_success.get("sim"), "push_to_goal_trials": args.goals,
+        "depth_noise_m": args.depth_noise, "flying_pixels": args.flying_pixels,
     }
     print(f"{len(pushes)} pushes after {args.rest_seconds:g} s at rest; {args.resolution[0]} x {args.resolution[1]} "
           f"camera clouds at 15 Hz; three objects")
