@@ -54,6 +54,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .registration import ObjectModel, register
+from .scene import hull_centroid
 
 G = 9.81  # m/s^2
 #: Where a new track's centre of mass comes from (the perception node's track_com): footprint_com, or the
@@ -139,27 +140,10 @@ def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
         return column
     # the top faces only: the side faces the camera sees lie on the footprint's near edge, densely, while its
     # far edge is sampled by the top face alone, which would pull the centroid of every point towards the camera
-    top, whole = _hull_centroid(pts[band, :2]), _hull_centroid(pts[:, :2])
+    top, whole = hull_centroid(pts[band, :2]), hull_centroid(pts[:, :2])
     if top is None or whole is None or top[1] < TOP_SPAN * whole[1]:
         return column
     return np.array([top[0][0], top[0][1], column[2]])
-
-
-def _hull_centroid(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Area centroid and area of the convex hull of 2-D points; None when they span no area."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    try:
-        ring = xy[ConvexHull(xy).vertices]
-    except (QhullError, ValueError):
-        return None
-    x, y = ring[:, 0], ring[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    area = cross.sum() / 2.0
-    if abs(area) <= 1e-9:
-        return None
-    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area), float(abs(area))
 
 
 def column_com(points: np.ndarray, table_height: float = 0.0, cell: float = 0.003) -> np.ndarray:

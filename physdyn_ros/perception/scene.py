@@ -454,3 +454,23 @@ def outline_xy(points: np.ndarray) -> np.ndarray:
         (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
         ring = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
     return np.vstack([ring, ring[:1]])
+
+
+def hull_centroid(xy: np.ndarray, min_area: float = 1e-9) -> tuple[np.ndarray, float] | None:
+    """Area centroid (2,) and area (m^2) of the convex hull of 2-D points; None when the hull spans less than
+    min_area (collinear or fewer than 3 points)."""
+    from scipy.spatial import ConvexHull
+    from scipy.spatial import QhullError
+
+    pts = np.asarray(xy, dtype=np.float64)
+    try:
+        ring = pts[ConvexHull(pts).vertices]
+    except (QhullError, ValueError):
+        return None
+    x, y = ring[:, 0], ring[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    if abs(area) < min_area:
+        return None
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area), float(abs(area))

@@ -43,8 +43,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..perception.scene import random_rows
-from .body import hull_2d
+from ..perception.scene import hull_centroid, random_rows
 
 __all__ = ["CONTINUOUS", "NONE", "symmetry_note", "yaw_symmetry"]
 
@@ -74,16 +73,8 @@ MAX_MISMATCH = 0.03
 
 def _axis(points: np.ndarray) -> np.ndarray:
     """(2,) area centroid of the hull of the points' horizontal projection (the mean for a degenerate hull)."""
-    poly = hull_2d(points[:, :2])
-    if len(poly) < 3:
-        return points[:, :2].mean(axis=0)
-    x, y = poly[:, 0], poly[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    area = 0.5 * cross.sum()
-    if abs(area) < 1e-12:
-        return points[:, :2].mean(axis=0)
-    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
+    hull = hull_centroid(points[:, :2], min_area=1e-12)
+    return points[:, :2].mean(axis=0) if hull is None else hull[0]
 
 
 def _rotate(points: np.ndarray, centre: np.ndarray, angle: float) -> np.ndarray:
