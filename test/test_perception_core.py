@@ -163,6 +163,23 @@ def test_tracker_single_object_mode_follows_the_object():
     assert tracker.follow([], 0.5, "object") is None
 
 
+def test_single_object_mode_follows_a_push_beyond_the_gate_by_shape():
+    """A push that moves the followed object farther than the gate between two clouds (a hard push, a cloud the
+    node dropped under load) keeps the track when the shape agrees: restarting it made the pose tracker capture a
+    new reference mid-push, and push_to_goal saw no onset. A larger object of another shape there restarts it."""
+    tracker = Tracker(gate=0.05)
+    a, b = np.array([0.0, 0.0, 0.04]), np.array([0.3, 0.0, 0.04])
+    box, tall = np.array([0.08, 0.03, 0.02]), np.array([0.2, 0.05, 0.05])
+    assert tracker.follow([a], 0.0, "object", [box]) == 0
+    for k in (1, 2):
+        assert tracker.follow([b, a], 0.1 * k, "object", [tall, box]) == 1
+    assert tracker.follow([b, a + [0.2, 0.0, 0.0]], 0.3, "object", [tall, box]) == 1
+    assert not tracker.take_retired() and tracker.tracks[0].hits == 4
+    assert tracker.follow([a + [0.2, 0.0, 0.0], b], 0.4, "object", [box, tall]) == 0  # and on from there
+    assert tracker.follow([b + [0.0, 0.3, 0.0]], 0.5, "object", [tall]) == 0
+    assert [why for _, why in tracker.take_retired()] == ["lost; the id restarts on another detection (single_object)"]
+
+
 def test_frames():
     pose = camera_optical_pose((0.6, 0.0, 0.45), (0.0, 0.0, 0.05))
     r = pose.rotation

@@ -329,15 +329,15 @@ class PerceptionNode(ManagedNode):
             self._take_retired()
             return [], self.markers(header, []), scene.reason
         centroids = np.array([o.centroid for o in scene.objects])
+        signatures = [shape_signature(o.points) for o in scene.objects]  # ids through fast pushes
         if p("single_object").value:
-            chosen = self.tracker.follow(centroids, t, p("object_id").value)
+            chosen = self.tracker.follow(centroids, t, p("object_id").value, signatures)
             labelled = [(p("object_id").value, scene.objects[chosen])]
             if len(scene.objects) > 1:
                 self._note(f"{len(scene.objects)} objects in the cloud; single_object publishes only the one "
                            f"tracked as '{labelled[0][0]}' (set single_object false for one feature per object)",
                            "several objects")
         else:
-            signatures = [shape_signature(o.points) for o in scene.objects]  # ids through fast pushes
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
         self._take_retired()
         features = []

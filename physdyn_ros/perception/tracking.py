@@ -242,11 +242,13 @@ class Tracker:
             ids.append(tr.id)
         return ids
 
-    def follow(self, centroids, t: float, track_id: str) -> int | None:
+    def follow(self, centroids, t: float, track_id: str, signatures=None) -> int | None:
         """Single-object mode: the index of the detection that continues the one track `track_id` (the detection
-        nearest its predicted position, within the gate), else of the first detection (the largest, as the
-        scene lists them) which restarts the track; None without detections."""
+        nearest its predicted position, within the gate; with `signatures`, else the second chance of the module
+        docstring: a push that moved the object beyond the gate between two clouds), else of the first detection
+        (the largest, as the scene lists them) which restarts the track; None without detections."""
         c = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
+        sig = None if signatures is None else np.asarray(signatures, dtype=np.float64).reshape(-1, 3)
         self._age(t)
         self.retired += [(tr.id, f"another object is followed as '{track_id}'") for tr in self.tracks
                          if tr.id != track_id]
@@ -256,11 +258,20 @@ class Tracker:
         if self.tracks:
             tr = self.tracks[0]
             dist = np.minimum(np.linalg.norm(c - tr.predict(t), axis=1), np.linalg.norm(c - tr.centroid, axis=1))
-            best = int(np.argmin(dist))
-            if dist[best] <= self.gate:
+            best: int | None = int(np.argmin(dist))
+            if dist[best] > self.gate:
+                jump = [i for i, j in (self._rematch(c, sig, {}) if sig is not None else {}).items() if j == 0]
+                best = jump[0] if jump else None
+                if best is not None:  # a jump, not a velocity: the constant-velocity prediction starts over
+                    tr.centroid, tr.velocity = c[best], np.zeros(3)
+            if best is not None:
                 self._update(tr, c[best], t)
+                if sig is not None:
+                    tr.signature = sig[best] if tr.signature is None else 0.8 * tr.signature + 0.2 * sig[best]
                 return best
         if self.tracks:
             self.retired.append((track_id, "lost; the id restarts on another detection (single_object)"))
         self.tracks = [self._new(c[0], t, track_id)]
+        if sig is not None:
+            self.tracks[0].signature = sig[0]
         return 0
