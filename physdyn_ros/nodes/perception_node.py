@@ -51,7 +51,7 @@ from ..msg import ObjectState, ShapeFeature
 from ..perception import RigidTransform, SceneConfig, Tracker, outline_xy, parse_transform, segment
 from ..perception.pose_tracking import COM_SOURCES, PoseConfig, PoseTracker, TrackedState, footprint_com
 from ..perception.scene import Preprocess, preprocess  # noqa: F401 - re-exported (bench/bench_nodes.py)
-from ..perception.scene import random_rows
+from ..perception.scene import Scene, random_rows
 from ..perception.tracking import shape_signature
 from ..ros.cloud import cloud_size, cloud_to_xyz, xyz_to_cloud
 from ..ros.convert import ns_to_time, point, time_to_ns, vector3
@@ -352,7 +352,7 @@ class PerceptionNode(ManagedNode):
                 heading=float(code.heading), centroid=point(code.centroid), half_extents=vector3(code.half_extents),
                 num_points=int(len(obj.points)), points=self.feature_points(obj.points, header)))
         if p("track_poses").value:
-            self.track(labelled, codes, heights, t, header)
+            self.track(labelled, codes, heights, t, header, scene)
         return features, self.markers(header, labelled), ""
 
     def _take_retired(self) -> None:
@@ -372,8 +372,9 @@ class PerceptionNode(ManagedNode):
                           onset_frames=int(p("track_onset_frames").value),
                           deceleration=float(p("track_deceleration").value), max_gap=float(p("track_max_gap").value))
 
-    def track(self, labelled, codes, heights, t: float, header: Header) -> None:
-        """Pose tracking of the labelled objects (their ids from the id tracker) into self.states / self.onsets."""
+    def track(self, labelled, codes, heights, t: float, header: Header, scene: Scene) -> None:
+        """Pose tracking of the labelled objects (their ids from the id tracker; `scene` the segmentation they
+        come from) into self.states / self.onsets."""
         self.poses.config = self.pose_config()
         # a pose track goes with its id: retired ids, and an id the id tracker just (re)started (single_object
         # restarts object_id on whatever it sees after losing it), never inherit an old reference
@@ -387,13 +388,15 @@ class PerceptionNode(ManagedNode):
         head = self.get_parameter("track_com").value == "model" and self.predictor.estimates_com
 
         def com_of(object_id: str, points: np.ndarray) -> np.ndarray:
-            obj, code = seen[object_id]
+            code = seen[object_id][1]
             # the points before outlier removal: the filter trims a top face's far edge, the outline needs it
-            com = footprint_com(obj.cluster if obj.cluster is not None else points, height)
+            com = footprint_com(points, height)
             # 'model': the head's x-y; the height of the solid under the view (the head's is 4 mm high)
             return np.array([*code.centroid[:2], com[2]]) if head else com
 
-        update = self.poses.update(t, [(object_id, obj.points) for object_id, obj in labelled], com_of, height)
+        update = self.poses.update(t, [(object_id, obj.points if obj.cluster is None else obj.cluster)
+                                       for object_id, obj in labelled], com_of, height,
+                                   lambda object_id: scene.surface(seen[object_id][0]))
         if update.notes:
             self.tracking_note = update.notes[-1]
         self.states = [self.state_msg(s, header) for s in update.states]

@@ -14,18 +14,20 @@
 """Object poses and twists from the clouds themselves, and push onsets (numpy and scipy; no ROS).
 
 Per tracked object (its id from tracking.Tracker):
-* reference: when first seen, its points become an `ObjectModel` (registration.py) in the object's frame, whose
-  origin is the centre-of-mass estimate (given by the caller: the perception node's `footprint_com` of the
-  object's points before outlier removal by default; without one, `footprint_com` of the points) and whose
-  axes are the table's at that instant: the published orientation is the rotation since the reference was
-  captured (identity then), as Predictor.rollout takes orientations;
+* reference: when first seen, its surface becomes an `ObjectModel` (registration.py) in the object's frame, whose
+  origin is the centre-of-mass estimate and whose axes are the table's at that instant: the published
+  orientation is the rotation since the reference was captured (identity then), as Predictor.rollout takes
+  orientations. The caller gives the surface (the perception node: every point of the cloud near the object's
+  cluster, `Scene.surface`; a model of one cloud's random sample leaves the next sample's points millimetres off
+  it, and the fit slides to explain them) and the centre of mass (the node: `footprint_com` of that surface, or
+  the encoder's head); without them, the detection's points and their `footprint_com`;
 * pose at every cloud: the object's points registered to the model (point-to-plane ICP) from the
   constant-velocity prediction and, when the points' centroid moved away from its prediction, from that pose
-  moved by the shift too (the first cloud of a push is far from any prediction); the fit explaining more points
-  wins; a fit that explains too few points keeps the track but
-  reports low confidence and the reason; a fit that explains the cloud no better than the last pose keeps that
-  pose; the points of a fit close to its guess (the pose held, or the motion predicted) that fit well
-  and lie off the model grow it;
+  moved by the shift too (the first cloud of a push is far from any prediction); the shifted guess wins only
+  when it explains clearly more points or its `misfit` is clearly the lower; a fit that explains too few points
+  keeps the track but reports low confidence and the reason; a fit that explains the cloud no better than the
+  last pose keeps that pose; the points of a fit close to its guess (the pose held, or the motion predicted)
+  that fit well and lie off the model grow it;
 * twist: a least-squares line through the last `window` poses (positions, and rotation vectors relative to the
   newest orientation) within `window_time`: zero-mean sensor noise averages out; at rest it is zero;
 * onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
@@ -53,7 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .registration import ObjectModel, register
+from .registration import INLIER_DISTANCE, Fit, ObjectModel, register
 from .scene import hull_centroid
 
 G = 9.81  # m/s^2
@@ -96,6 +98,15 @@ CONFIRM_FRAMES = 2
 HOLD_INLIERS = 0.02
 HOLD_RMSE = 1.1
 HOLD_RMSE_ABS = 0.0002
+#: The guess moved by the centroid's shift replaces the prediction's fit only when it explains clearly more of the
+#: points (GUESS_INLIERS more) or explains them clearly more closely: its misfit below GUESS_MARGIN times the
+#: prediction's, less GUESS_MARGIN_ABS (m^2). On a dense model a fit that stays behind a slide along a large face
+#: still explains nearly every point (within the inlier distance), only less closely; at rest, residuals of a few
+#: tenths of a millimetre differ by noise alone, and a view that leaves a slide along a face free fits as well
+#: wherever the shifted guess starts.
+GUESS_INLIERS = 0.02
+GUESS_MARGIN = 0.8
+GUESS_MARGIN_ABS = 1e-7
 #: A fit grows the model only when it stays within GROW_TURN (rad) and GROW_SHIFT (m) of its starting guess.
 GROW_TURN = math.radians(1.0)
 GROW_SHIFT = 0.002
@@ -144,6 +155,14 @@ def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
     if top is None or whole is None or top[1] < TOP_SPAN * whole[1]:
         return column
     return np.array([top[0][0], top[0][1], column[2]])
+
+
+def misfit(fit: Fit) -> float:
+    """Mean squared point-to-plane residual over all the fit's points, an outlier counting as the inlier
+    distance (m^2): how many points the model explains and how closely, in one number."""
+    if fit.inliers <= 0.0 or not math.isfinite(fit.rmse):
+        return INLIER_DISTANCE ** 2
+    return fit.inliers * fit.rmse ** 2 + (1.0 - fit.inliers) * INLIER_DISTANCE ** 2
 
 
 def column_com(points: np.ndarray, table_height: float = 0.0, cell: float = 0.003) -> np.ndarray:
@@ -276,10 +295,11 @@ class PoseTracker:
         return gone
 
     def update(self, t: float, detections, com_of: Callable[[str, np.ndarray], np.ndarray] | None = None,
-               table_height: float = 0.0) -> PoseUpdate:
-        """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). com_of(object_id,
-        points): the centre-of-mass estimate (3,) of a track whose reference is captured, on a first sighting or
-        after a reset (default: footprint_com of its points)."""
+               table_height: float = 0.0, surface_of: Callable[[str], np.ndarray] | None = None) -> PoseUpdate:
+        """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). A track's reference
+        is captured on a first sighting or after a reset: surface_of(object_id) gives the points of its model (the
+        object as densely as the cloud has it; default: the detection's points), and com_of(object_id, those
+        points) its centre-of-mass estimate (3,) (default: footprint_com of them)."""
         out = PoseUpdate()
         if self._last_t is not None and t < self._last_t - self.config.max_gap:
             out.notes.append(f"time went back from {self._last_t:.3f} s to {t:.3f} s (a replayed bag, a reset clock): "
@@ -297,8 +317,9 @@ class PoseTracker:
                 continue
             track = self.tracks.get(object_id)
             if track is None:
-                com = footprint_com(pts, table_height) if com_of is None else com_of(object_id, pts)
-                track = self._capture(object_id, pts, t, np.asarray(com, dtype=np.float64))
+                dense = pts if surface_of is None else np.asarray(surface_of(object_id), dtype=np.float64)
+                com = footprint_com(dense, table_height) if com_of is None else com_of(object_id, dense)
+                track = self._capture(object_id, dense, t, np.asarray(com, dtype=np.float64), pts.mean(axis=0))
                 out.states.append(self._state(track, "reference captured"))
                 continue
             state, onset = self._step(track, pts, t)
@@ -308,10 +329,11 @@ class PoseTracker:
         return out
 
     # --------------------------------------------------------------------------------------------- per track
-    def _capture(self, object_id: str, pts: np.ndarray, t: float, com: np.ndarray) -> PoseTrack:
+    def _capture(self, object_id: str, pts: np.ndarray, t: float, com: np.ndarray, centroid: np.ndarray
+                 ) -> PoseTrack:
         cfg = self.config
         model = ObjectModel(pts - com, cfg.model_voxel, cfg.model_points)
-        track = PoseTrack(object_id, model, np.eye(3), com.copy(), pts.mean(axis=0), t)
+        track = PoseTrack(object_id, model, np.eye(3), com.copy(), centroid, t)
         track.history.append((t, com.copy(), np.eye(3)))
         track.rest_position, track.rest_rotation, track.rest_t = com.copy(), np.eye(3), t
         self.tracks[object_id] = track
@@ -343,7 +365,8 @@ class PoseTracker:
         fit, guess = None, None
         for rot, pos in self._guesses(track, t, sub):
             trial = register(sub, track.model, rot, pos, iterations=cfg.icp_iterations, tilt=cfg.tilt)
-            if fit is None or trial.inliers > fit.inliers + 0.02:  # the prediction wins a tie
+            if fit is None or trial.inliers > fit.inliers + GUESS_INLIERS or (  # else the prediction
+                    misfit(trial) < GUESS_MARGIN * misfit(fit) - GUESS_MARGIN_ABS):
                 fit, guess = trial, (rot, pos)
         assert fit is not None and guess is not None
         # a registration that explains the points no better than the last pose is noise: on a view that pins a

@@ -37,6 +37,8 @@ from scipy.spatial import cKDTree
 
 #: Neighbours of a model point whose plane gives its normal.
 NORMAL_NEIGHBORS = 10
+#: m: observed points this close to the model are its inliers (the final correspondence distance of `register`).
+INLIER_DISTANCE = 0.006
 
 
 def estimate_normals(points: np.ndarray, k: int = NORMAL_NEIGHBORS, tree: cKDTree | None = None) -> np.ndarray:
@@ -116,7 +118,7 @@ class ObjectModel:
 
 
 def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, translation: np.ndarray, *,
-             max_distance: float = 0.03, min_distance: float = 0.006, iterations: int = 10,
+             max_distance: float = 0.03, min_distance: float = INLIER_DISTANCE, iterations: int = 10,
              damping: float = 1e-4, degenerate: float = 0.08, tilt: bool = True) -> Fit:
     """Pose of `model` that best explains `points` (N, 3, table frame), from the guess (rotation, translation).
 

@@ -126,10 +126,11 @@ class TablePlane:
 
 @dataclass
 class SceneObject:
-    """One object: its points (table frame, float64) after outlier removal, and the same sample of at most
-    `object_points` before it (`cluster`; None where the object was made without one): the filter trims the far
-    edge of a top face, which the camera samples sparsest, and a centre of mass taken from the view's outline
-    needs it."""
+    """One object: a sample of at most `object_points` of its points (table frame, float64) after outlier
+    removal, and all its clustered points before both (`cluster`; None where the object was made without one).
+    The filter trims the far edge of a top face, which the camera samples sparsest, and a centre of mass taken
+    from the view's outline needs it; pose tracking registers to a model of the whole cluster, since a random
+    sample of each cloud lies up to a few millimetres off the previous cloud's sample."""
 
     points: np.ndarray
     cluster: np.ndarray | None = None
@@ -152,6 +153,29 @@ class Scene:
     cell: float = 0.0  # m, the cell side the clustering used
     dropped: list[str] = field(default_factory=list)  # clusters that are not objects, and why
     reason: str = ""
+    above: np.ndarray | None = None  # the points left after crop and plane removal, in the frame of to_table
+    to_table: RigidTransform = field(default_factory=RigidTransform.identity)
+
+    def surface(self, obj: SceneObject) -> np.ndarray:
+        """All the points of `above` within the clustering's cell side of the object's clustered points, table
+        frame: the object as densely as the cloud has it, where the clustering saw only a sample of
+        `sample_points` (the pose tracker's reference model: each cloud's sample lies millimetres off the last
+        one's, and a top face seen at a grazing angle is sampled centimetres apart). Points that close to the
+        cluster would have joined it. Its cluster (or points) when the scene keeps no points."""
+        from scipy.spatial import cKDTree
+
+        pts = obj.cluster if obj.cluster is not None else obj.points
+        reach = self.cell
+        if self.above is None or not len(self.above) or reach <= 0:
+            return pts
+        lo, hi = pts.min(axis=0) - reach, pts.max(axis=0) + reach
+        near = self.to_table.apply(self.above).astype(np.float64)
+        box = np.all((near >= lo) & (near <= hi), axis=1)
+        near = near[box]
+        if not len(near):
+            return pts
+        d, _ = cKDTree(pts).query(near, distance_upper_bound=reach)
+        return near[np.isfinite(d)]
 
 
 # ------------------------------------------------------------------------------------------------- basics
@@ -356,6 +380,7 @@ def _clean(points: np.ndarray, cfg: SceneConfig, to_table: RigidTransform | None
     if cfg.voxel_size > 0 and len(pts):
         pts = voxel_downsample(pts, cfg.voxel_size)
     scene.above_points = len(pts)
+    scene.above, scene.to_table = pts, to_table
     return in_range(to_table.apply(random_rows(pts, cfg.sample_points, rng)).astype(np.float64))
 
 
@@ -404,11 +429,11 @@ def segment(points: np.ndarray, cfg: SceneConfig, to_table: RigidTransform | Non
             scene.dropped.append(f"a cluster of {len(obj)} points beyond max_objects {cfg.max_objects}")
             continue
         sample = random_rows(obj, cfg.object_points, rng)
-        obj = sample[outlier_mask(sample, cfg.outlier_neighbors, cfg.outlier_std_ratio)]
-        if len(obj) < cfg.min_points:
+        kept = sample[outlier_mask(sample, cfg.outlier_neighbors, cfg.outlier_std_ratio)]
+        if len(kept) < cfg.min_points:
             few += 1
             continue
-        scene.objects.append(SceneObject(obj, sample))
+        scene.objects.append(SceneObject(kept, obj))
     if small:
         scene.dropped.append(f"{small} cluster(s) of fewer than min_points {cfg.min_points} points")
     if few:
