@@ -271,3 +271,21 @@ def test_at_rest_the_pose_holds_where_the_fit_is_no_better():
     assert all(np.array_equal(poses[1], p) for p in poses[2:]), np.ptp(poses[1:], axis=0).max()
     moved = pt.update(12 / RATE, [("box", box + [0.01, 0.0, 0.0])]).states[0]
     np.testing.assert_allclose(moved.position - poses[-1][:3], [0.01, 0.0, 0.0], atol=0.001)
+
+
+def test_no_push_is_inferred_across_a_gap():
+    """A track seen again only after more than max_gap (a fragment of a cluster seen now and then, an object
+    hidden for seconds) takes its new pose as its rest pose: sightings 2 s apart that moved 1 and 2.5 cm report no
+    push; a push along x seen cloud by cloud afterwards still does."""
+    scene = tabletop_scene(20_000, rng=np.random.default_rng(0))
+    box = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(0)).objects[0].points
+    pt = PoseTracker()
+    onsets = []
+    for t, dx in [(0.0, 0.0), (2.0, 0.01), (4.0, 0.025)]:
+        up = pt.update(t, [("box", box + [dx, 0.0, 0.0])])
+        onsets += up.onsets
+    assert not onsets, [(o.t, o.linear) for o in onsets]
+    assert pt.tracks["box"].position[0] - pt.tracks["box"].rest_position[0] == pytest.approx(0.0, abs=1e-9)
+    for k in range(1, 5):  # then a push at 0.3 m/s, 2 cm per cloud
+        onsets += pt.update(4.0 + k / RATE, [("box", box + [0.025 + 0.02 * k, 0.0, 0.0])]).onsets
+    assert len(onsets) == 1 and onsets[0].linear[0] > 10 * abs(onsets[0].linear[1]), [o.linear for o in onsets]

@@ -41,7 +41,8 @@ Per tracked object (its id from tracking.Tracker):
 
 Bad input: a stamp not after the previous one (a frozen sensor sends the same cloud twice) is skipped with the
 reason; time going back by more than `max_gap` (a replayed bag) drops every track; after a gap longer than
-`max_gap` the motion history is dropped (the prediction is stale) and the pose is registered from the last one;
+`max_gap` the motion history is dropped (the prediction is stale), the pose is registered from the last one and
+is the new rest pose (no push is inferred across the gap);
 a partial view (the object half out of view, a hand in front) keeps the track with confidence = the share of
 points the model explains, and a fit that explains fewer than `min_inliers` leaves the pose as it was.
 """
@@ -356,7 +357,8 @@ class PoseTracker:
     def _step(self, track: PoseTrack, pts: np.ndarray, t: float) -> tuple[TrackedState, TrackedState | None]:
         cfg = self.config
         note = ""
-        if t - track.t > cfg.max_gap:  # a stale prediction: start the motion history over
+        gap = t - track.t > cfg.max_gap
+        if gap:  # a stale prediction: start the motion history over
             keep = track.history[-1]
             track.history.clear()
             track.history.append(keep)
@@ -384,6 +386,14 @@ class PoseTracker:
         track.centroid = pts.mean(axis=0)
         track.rotation, track.position, track.t = fit.rotation, fit.translation, t
         track.history.append((t, fit.translation.copy(), fit.rotation.copy()))
+        if gap:
+            # nothing is known of the motion across the gap: the pose found is the new rest pose, and no push is
+            # inferred from poses seconds apart (a fragment of a cluster seen now and then drifts from sighting to
+            # sighting)
+            track.history.clear()
+            track.history.append((t, fit.translation.copy(), fit.rotation.copy()))
+            track.moving, track.push, track.reported = False, [], False
+            track.rest_position, track.rest_rotation, track.rest_t = fit.translation.copy(), fit.rotation.copy(), t
         turn = float(np.linalg.norm(Rotation.from_matrix(fit.rotation @ guess[0].T).as_rotvec()))
         if fit.rmse < 0.0025 and turn < GROW_TURN and float(np.linalg.norm(fit.translation - guess[1])) < GROW_SHIFT:
             # new faces join the model only at a pose the motion predicted: points added at a pose that a fit
