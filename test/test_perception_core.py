@@ -219,3 +219,25 @@ def test_the_table_plane_gives_its_height_under_an_object():
     for x, y in ((0.0, 0.0), (0.3, -0.2), (-0.5, 0.4)):
         z = plane.height_at(x, y)
         assert float(n @ np.array([x, y, z])) + plane.offset == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("crop", [False, True])
+def test_an_objects_surface_is_every_point_near_its_cluster_in_the_table_frame(crop):
+    """Scene.surface: the object's points of the whole cloud (not the clustering's sample of `sample_points`), in
+    the table frame whether the cloud's points are moved there at the end (to_table) or first by the crop box; each
+    lies within the clustering's cell of the cluster, the cluster is part of it, and it holds nearly all the cloud's
+    points on the object."""
+    from scipy.spatial import cKDTree
+
+    scene = tabletop_scene(20_000, rng=np.random.default_rng(0))  # camera optical frame
+    found = segment(scene.points, SceneConfig(sample_points=1024, crop=crop), scene.camera, np.random.default_rng(0))
+    table = scene.camera.apply(scene.points.astype(np.float64))
+    assert len(found.objects) == 3
+    for obj in found.objects:
+        dense = found.surface(obj)
+        d, _ = cKDTree(obj.cluster).query(dense)
+        assert d.max() <= found.cell + 1e-9
+        assert cKDTree(dense).query(obj.cluster)[0].max() < 1e-6  # the cluster's points, in the same frame
+        lo, hi = obj.cluster.min(axis=0), obj.cluster.max(axis=0)
+        on_object = np.all((table >= lo) & (table <= hi), axis=1) & (table[:, 2] > 0.01)
+        assert len(dense) > 1.5 * len(obj.cluster) and len(dense) >= 0.95 * on_object.sum()

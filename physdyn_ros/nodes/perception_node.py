@@ -171,8 +171,9 @@ class PerceptionNode(ManagedNode):
                 "fitted and published", low=1, high=30)
         declare(self, "track_deceleration", t.deceleration, "m/s^2, the sliding deceleration (friction mu g) "
                 "assumed when too few clouds of a push fix it", low=0.01, high=100.0)
-        declare(self, "track_max_gap", t.max_gap, "s without a cloud after which a track's motion history is "
-                "dropped", low=0.01, high=3600.0)
+        declare(self, "track_max_gap", t.max_gap, "s without a pose (no cloud, or clouds the model explains too "
+                "little of) after which a track's motion history is dropped and the pose it is seen at next is its "
+                "rest pose (no push is inferred across the gap)", low=0.01, high=3600.0)
         self.predictor = None  # the encoder: loaded on configure, released on cleanup
         self._rng = np.random.default_rng(0)
         self.tracker = Tracker()
@@ -249,8 +250,10 @@ class PerceptionNode(ManagedNode):
         found = segment(scene.points, SceneConfig(), scene.camera, np.random.default_rng(0))
         ids = Tracker().update([o.centroid for o in found.objects], 0.0)
         warm = PoseTracker()
-        for k in range(3):  # capture, then registration and the twist
-            warm.update(0.1 * k, [(i, o.points) for i, o in zip(ids, found.objects)])
+        objects = dict(zip(ids, found.objects))
+        for k in range(3):  # capture, then registration and the twist, as track() calls them
+            warm.update(0.1 * k, [(i, o.cluster) for i, o in objects.items()],
+                        surface_of=lambda i: found.surface(objects[i]))
         outline_xy(found.objects[0].points)
         self.predictor.encode(found.objects[0].points)
 
@@ -389,7 +392,7 @@ class PerceptionNode(ManagedNode):
 
         def com_of(object_id: str, points: np.ndarray) -> np.ndarray:
             code = seen[object_id][1]
-            # the points before outlier removal: the filter trims a top face's far edge, the outline needs it
+            # the object's whole surface, without outlier removal: it trims a top face's far edge
             com = footprint_com(points, height)
             # 'model': the head's x-y; the height of the solid under the view (the head's is 4 mm high)
             return np.array([*code.centroid[:2], com[2]]) if head else com

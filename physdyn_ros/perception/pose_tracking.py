@@ -41,8 +41,8 @@ Per tracked object (its id from tracking.Tracker):
 
 Bad input: a stamp not after the previous one (a frozen sensor sends the same cloud twice) is skipped with the
 reason; time going back by more than `max_gap` (a replayed bag) drops every track; after a gap longer than
-`max_gap` the motion history is dropped (the prediction is stale), the pose is registered from the last one and
-is the new rest pose (no push is inferred across the gap);
+`max_gap` without a pose (no cloud, or fits below `min_inliers`) the motion history is dropped (the prediction is
+stale), the pose is registered from the last one and is the new rest pose (no push is inferred across the gap);
 a partial view (the object half out of view, a hand in front) keeps the track with confidence = the share of
 points the model explains, and a fit that explains fewer than `min_inliers` leaves the pose as it was.
 """

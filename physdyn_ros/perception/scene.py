@@ -42,6 +42,8 @@ Pipeline of `segment` (each step bounded so that a 100k-point cloud costs a few 
 
 The k-nearest-neighbour queries run on at most `object_points` points per object: a k-d tree query over the
 whole scene cost 14-27 ms alone on the 2-core test machine, more than the budget for the whole cloud.
+`Scene.surface` (the dense points of one object, for a new pose track's reference) is the exception, called once
+per new track: it transforms the points of steps 1-4 and queries those in the object's bounding box.
 
 All randomness comes from the generator passed in (seeded by the caller): results are reproducible.
 """
@@ -153,7 +155,7 @@ class Scene:
     cell: float = 0.0  # m, the cell side the clustering used
     dropped: list[str] = field(default_factory=list)  # clusters that are not objects, and why
     reason: str = ""
-    above: np.ndarray | None = None  # the points left after crop and plane removal, in the frame of to_table
+    above: np.ndarray | None = None  # the points after subsampling, crop, plane and grid (steps 1-4), frame of to_table
     to_table: RigidTransform = field(default_factory=RigidTransform.identity)
 
     def surface(self, obj: SceneObject) -> np.ndarray:
