@@ -199,25 +199,29 @@ def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_in
         node.destroy_node()
 
 
-def test_a_new_track_takes_its_centre_of_mass_from_the_untrimmed_view(rclpy_init, tiny_model):
-    """The sim's depth camera over a box and a speaker: each new track's centre of mass (footprint_com of the
-    object's points before outlier removal) lies within 5 mm of the truth in x-y, and so does a track's reference
-    captured again after the clock went back past track_max_gap. The outlier filter trims the top's far edge,
-    which the camera samples sparsest: from the filtered points this scene's read 8 and 12 mm off."""
+def box_and_speaker_view() -> tuple[np.ndarray, list[np.ndarray]]:
+    """The sim's 320 x 240 depth camera cloud (world frame) over a box and a speaker, and their true x-y."""
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
     from physdyn_ros.sim.camera import CameraSpec, DepthCamera
 
+    spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), (320, 240), 60.0)
+    with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
+        sim.spawn(resolve_shape("box", 9001), xy=(0.05, -0.2), yaw=0.7, object_id="a")
+        sim.spawn(resolve_shape("speaker", 9002), xy=(0.05, 0.2), yaw=-0.4, object_id="b")
+        return DepthCamera(sim).render(spec), [np.asarray(s[0])[:2] for s in sim.states().values()]
+
+
+def test_a_new_track_takes_its_centre_of_mass_from_the_untrimmed_view(rclpy_init, tiny_model):
+    """The sim's depth camera over a box and a speaker: each new track's centre of mass (footprint_com of the object's
+    surface in the cloud, without outlier removal) lies within 5 mm of the truth in x-y, and so does a track's
+    reference captured again after the clock went back past track_max_gap. The outlier filter trims the top's far
+    edge, which the camera samples sparsest: from the filtered points this scene's read 8 and 12 mm off."""
     node = PerceptionNode(parameter_overrides=[  # the 5 mm grid of `--state-source perception`
         Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
         Parameter("voxel_size", value=0.005)])
-    spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), (320, 240), 60.0)
+    points, truth = box_and_speaker_view()
     try:
-        with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
-            sim.spawn(resolve_shape("box", 9001), xy=(0.05, -0.2), yaw=0.7, object_id="a")
-            sim.spawn(resolve_shape("speaker", 9002), xy=(0.05, 0.2), yaw=-0.4, object_id="b")
-            points = DepthCamera(sim).render(spec)
-            truth = [np.asarray(s[0])[:2] for s in sim.states().values()]
         errors = []
         for stamp in (10**9 + 2 * 10**9, 10**9 + int(0.5e9)):  # then 1.5 s back: the pose tracks start over
             node.process(xyz_to_cloud(points, "world", ns_to_time(stamp)))
@@ -236,19 +240,11 @@ def test_the_same_camera_cloud_again_and_again_leaves_every_pose_where_it_is(rcl
     more than 1 mm and no push is reported, with the node's default grid (none) and the 5 mm one. Each cloud's
     clustering sees another random sample of the points; a reference model of one sample left the next one's
     points millimetres off it, and the registration slid the box 2 cm (8 mm with the grid) in three clouds."""
-    from physdyn_ros.shapes import resolve_shape
-    from physdyn_ros.sim import SimConfig, Simulator
-    from physdyn_ros.sim.camera import CameraSpec, DepthCamera
-
     node = PerceptionNode(parameter_overrides=[
         Parameter("model_path", value=str(tiny_model)), Parameter("single_object", value=False),
         Parameter("voxel_size", value=voxel)])
-    spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), (320, 240), 60.0)
+    points, _ = box_and_speaker_view()
     try:
-        with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
-            sim.spawn(resolve_shape("box", 9001), xy=(0.05, -0.2), yaw=0.7, object_id="a")
-            sim.spawn(resolve_shape("speaker", 9002), xy=(0.05, 0.2), yaw=-0.4, object_id="b")
-            points = DepthCamera(sim).render(spec)
         first: dict[str, np.ndarray] = {}
         moved = {}
         for k in range(10):
