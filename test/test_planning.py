@@ -540,3 +540,63 @@ def _fused_checks(planner, model, trusting, cfg, far, tall, squat, path):
     with pytest.raises(PlanningError, match="not topple fusion weights"):
         planner.plan(squat, Pose2D(0, 0, 0), far)
     planner.plan(squat, Pose2D(0, 0, 0), far, config=replace(cfg, whole_cloud=False))  # weights not needed
+
+
+class _Cliff(AnalyticSlidingModel):
+    """The sliding model; pushes faster than 1.05 m/s topple."""
+
+    def rollout_batch(self, *args, **kwargs):
+        out = super().rollout_batch(*args, **kwargs)
+        out.topple_prob[:] = (np.linalg.norm(out.lin_vels[:, 0, :2], axis=1) > 1.05)[:, None]
+        return out
+
+
+def test_an_ensemble_member_that_sees_a_topple_makes_the_check_pessimistic():
+    """The search runs on the first model; the robustness check also on every ensemble member. A member that calls
+    the fast perturbations of a push topples raises that push's worst risk (the highest member's), though the
+    search model sees none; held pessimistically, the push at that cliff is refused. A member that slides
+    further (less friction) widens the reported spread by their disagreement."""
+    goal = Goal(Pose2D(0.11, 0.0, 0.0), position_tolerance=0.005, yaw_tolerance=math.pi)  # ~1.04 m/s
+    cfg = replace(FAST, time_budget=30.0, max_iterations=6, tip_check=False, physics_check=False)
+    alone = PushPlanner(AnalyticSlidingModel(0.5), cfg).plan(box_cloud(), Pose2D(0, 0, 0), goal)
+    assert alone.worst_topple_probability == 0.0 and "models" not in alone.message
+    both = PushPlanner(AnalyticSlidingModel(0.5), cfg, ensemble=[_Cliff(0.5)]).plan(box_cloud(), Pose2D(0, 0, 0),
+                                                                                     goal)
+    assert both.worst_topple_probability == 1.0 and both.robust_topple_probability <= cfg.max_topple_probability
+    assert "over 2 models" in both.message
+    with pytest.raises(PlanningError, match="no safe push"):
+        PushPlanner(AnalyticSlidingModel(0.5), replace(cfg, pessimistic=True), ensemble=[_Cliff(0.5)]).plan(
+            box_cloud(), Pose2D(0, 0, 0), goal)
+    wide = PushPlanner(AnalyticSlidingModel(0.5), cfg, ensemble=[AnalyticSlidingModel(0.4)]).plan(
+        box_cloud(), Pose2D(0, 0, 0), goal)
+    # the member slides 25 % further: its ~2.5 cm gap enters the RMS spread
+    assert wide.spread > alone.spread + 0.005
+
+
+def test_ensemble_members_must_step_alike_and_see_the_points():
+    with pytest.raises(ValueError, match="steps"):
+        PushPlanner(AnalyticSlidingModel(0.5), FAST, ensemble=[AnalyticSlidingModel(0.5, dt=0.1)])
+    with pytest.raises(ValueError, match="at most 30 steps"):
+        PushPlanner(AnalyticSlidingModel(0.5), FAST, ensemble=[AnalyticSlidingModel(0.5, max_horizon=30)])
+    model = AnalyticSlidingModel(0.5)
+    code = model.encode(box_cloud())  # a code without points: the members cannot encode the object
+    planner = PushPlanner(model, FAST, ensemble=[AnalyticSlidingModel(0.4)])
+    with pytest.raises(PlanningError, match="members need the object's points"):
+        planner.plan(code, Pose2D(0, 0, 0), Goal(Pose2D(0.1, 0.0, 0.0)))
+    assert planner.plan(code, Pose2D(0, 0, 0), Goal(Pose2D(0.1, 0.0, 0.0)), cloud=box_cloud()).rollouts > 0
+
+
+def test_an_ensemble_of_learned_models_plans_with_each_members_own_code(tmp_path):
+    """Learned members refuse each other's shape codes (model ids): each encodes the cloud itself."""
+    from learn_support import random_checkpoint
+
+    from physdyn_ros.predictor import Predictor
+
+    lead, other = (Predictor.load(random_checkpoint(tmp_path / f"m{s}.pt", seed=s)) for s in (0, 1))
+    assert lead.model_id != other.model_id
+    cfg = PlannerConfig(time_budget=5.0, samples=32, max_iterations=2, max_topple_probability=1.0, seed=0)
+    goal = Goal(Pose2D(0.15, 0.05, 0.0), position_tolerance=0.05, yaw_tolerance=math.pi)
+    plan = PushPlanner(lead, cfg, ensemble=[other]).plan(box_cloud(), Pose2D(0, 0, 0), goal)
+    single = PushPlanner(lead, cfg).plan(box_cloud(), Pose2D(0, 0, 0), goal)
+    assert plan.rollouts > single.rollouts  # the member's roll-outs of the robustness check
+    assert "over 2 models" in plan.message and plan.model_id == lead.model_id

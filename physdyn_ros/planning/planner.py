@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
-from typing import Any, Optional, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -56,8 +56,19 @@ class PushPlanner:
     Not thread-safe (the model is not): use one planner per thread, or serialise calls.
     """
 
-    def __init__(self, model: DynamicsModel, config: PlannerConfig = PlannerConfig()) -> None:
+    def __init__(self, model: DynamicsModel, config: PlannerConfig = PlannerConfig(),
+                 ensemble: Sequence[DynamicsModel] = ()) -> None:
+        """`ensemble`: further models of the same dynamics (members trained from other seeds and data, e.g.
+        resources.ENSEMBLE_MODELS loaded): the search runs on `model`, the robustness check on every member, each
+        push's topple risk the highest of theirs and its spread widened by their disagreement."""
+        for member in ensemble:
+            if abs(float(member.dt) - float(model.dt)) > 1e-9:
+                raise ValueError(f"ensemble member {member.model_id} steps {member.dt} s, the model {model.dt} s")
+            if int(member.max_horizon) < int(model.max_horizon):
+                raise ValueError(f"ensemble member {member.model_id} rolls out at most {member.max_horizon} steps, "
+                                 f"fewer than the model's {model.max_horizon}")
         self.model = model
+        self.ensemble = list(ensemble)
         self.config = config
         self._step_cost = StepCost()  # measured cost of one candidate-step, shared by this planner's searches
         self._physics: Optional[PhysicsCheck] = None  # created on the first plan that checks (imports pybullet)
@@ -125,6 +136,19 @@ class PushPlanner:
                 raise PlanningError(f"cloud must be (N >= 4, 3) finite points, got shape {cloud.shape}")
         return code, cloud
 
+    def _members(self, code: Any, cloud: Optional[np.ndarray]) -> list[tuple[DynamicsModel, Any]]:
+        """(member, its code of the object) for each ensemble member: each encodes the points itself (the cloud,
+        else the code's own points; a code without points cannot be re-encoded: PlanningError)."""
+        if not self.ensemble:
+            return []
+        points = cloud if cloud is not None else getattr(code, "points", None)
+        if points is None:
+            raise PlanningError("the ensemble's members need the object's points: give the cloud with the shape code")
+        try:
+            return [(member, member.encode(points)) for member in self.ensemble]
+        except ValueError as exc:
+            raise PlanningError(f"bad cloud: {exc}") from None
+
     def _body(self, code: Any, cloud: Optional[np.ndarray], start: Pose2D, mass: Optional[float],
               cfg: PlannerConfig) -> PushBody:
         if mass is not None:
@@ -181,7 +205,8 @@ class PushPlanner:
             raise PlanningError(f"goal unreachable: it is {dist:.3f} m away, but a push of at most "
                                 f"{cfg.max_speed:g} m/s slides at most {cfg.reach():.3f} m at friction "
                                 f">= {cfg.min_friction:g} (v^2 / (2 mu g)); raise max_speed or push twice")
-        search = Search(self.model, self._step_cost, code, body, start, goal, cfg, horizon, t0, self.physics(cfg))
+        search = Search(self.model, self._step_cost, code, body, start, goal, cfg, horizon, t0, self.physics(cfg),
+                        self._members(code, cloud))
         best = search.run()
         return self._result(search, best, t0)
 
@@ -252,6 +277,8 @@ class PushPlanner:
         lin = np.array([best.speed * best.direction[0], best.speed * best.direction[1], 0.0])
         yaw_text = "" if goal.ignores_yaw else f", yaw {math.degrees(best.yaw_err):.1f} deg"
         robust = f", spread {100 * best.spread:.1f} cm" if search.checked else ""
+        if search.checked and search.others:
+            robust += f" over {1 + len(search.others)} models"
         if best.physics_topple >= 0 and search.fused:
             robust += f", fused with the solid's physics {best.physics_topple:.2f}"
         elif best.physics_topple >= 0:

@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -160,9 +160,10 @@ class Search:
     """One CEM run (state shared by the iterations and the robustness check)."""
 
     def __init__(self, model: DynamicsModel, step_cost: StepCost, code: Any, body: PushBody, start: Pose2D,
-                 goal: Goal, cfg: PlannerConfig, horizon: int, t0: float, physics: Optional[PhysicsCheck] = None
-                 ) -> None:
+                 goal: Goal, cfg: PlannerConfig, horizon: int, t0: float, physics: Optional[PhysicsCheck] = None,
+                 others: Sequence[tuple[DynamicsModel, Any]] = ()) -> None:
         self.model, self.step_cost, self.code, self.body = model, step_cost, code, body
+        self.others = list(others)  # (model, its code): the ensemble's other members, for the robustness check
         self.start, self.goal, self.cfg, self.horizon, self.t0 = start, goal, cfg, horizon, t0
         self.physics = physics
         self.fused = False  # the physics check's verdicts are the topple fusion's (_physics_checked)
@@ -175,9 +176,6 @@ class Search:
         self.rollouts = 0
         self.checked = False
         self.seen: list[Candidate] = []  # every candidate of the CEM iterations
-        # the learned model's topple probability over the search horizon is the whole push's (not the prefix of a
-        # 60-step run: the outcome matters, and 16 steps cost 16)
-        self.extra = {"head_timing": False} if isinstance(self.model, Predictor) else {}
         self.z0 = float(np.asarray(code.centroid)[2])
         try:
             self.h_lo, self.h_hi = body.height_range(cfg.min_contact_height, cfg.max_contact_height)
@@ -249,25 +247,37 @@ class Search:
         f = np.clip(params[:, 2], -self.cfg.max_offset_fraction, self.cfg.max_offset_fraction)
         return d, s, f, np.clip(params[:, 3], 0.0, 1.0)
 
-    def evaluate(self, params: np.ndarray, keep: bool = True) -> list[Candidate]:
-        """Roll out candidate pushes (n, 4); keep: remember them in self.seen (the robustness fallback's pool)."""
+    def _pushes(self, params: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(direction, speed, offset fraction, height fraction, contact, offset, lin_vel, ang_vel) of pushes (n, 4)."""
         d, s, f, hf = self._project(params)
         contacts, e = self.body.contacts(d, f, self.h_lo + hf * (self.h_hi - self.h_lo))
         v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
-        w = self.body.angular_velocity(v, contacts)
+        return d, s, f, hf, contacts, e, v, self.body.angular_velocity(v, contacts)
+
+    def _rollout(self, model: DynamicsModel, code: Any, v: np.ndarray, w: np.ndarray) -> TrajectoryBatch:
+        """One model's roll-outs of the pushes (v, w) from the start over the search horizon."""
         p0 = np.array([self.start.x, self.start.y, self.z0])
-        t = time.perf_counter()
+        extra = {"head_timing": False} if isinstance(model, Predictor) else {}
         try:
-            batch = self.model.rollout_batch(self.code, v, w, horizon=self.horizon, positions=p0, **self.extra)
+            return model.rollout_batch(code, v, w, horizon=self.horizon, positions=p0, **extra)
         except ValueError as exc:  # e.g. a shape code from another model
             raise PlanningError(f"the dynamics model refused the request: {exc}") from None
-        spent = time.perf_counter() - t
-        per_step = spent / (len(s) * self.horizon)
-        self.step_cost.update(per_step)
-        self.rollouts += len(s)
+
+    def _scored(self, batch: TrajectoryBatch, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Search.costs of `batch`, with the tipping estimate of the pushes (v, w) and the spin limit."""
         tip = self.body.tip_ratios(v, w, self.cfg.friction) if self.cfg.tip_check else None
         costs, pos_err, yaw_err, topple, off = self.costs(batch, tip)
-        costs = costs + INFEASIBLE * (np.linalg.norm(w, axis=1) > self.cfg.max_spin)
+        return (costs + INFEASIBLE * (np.linalg.norm(w, axis=1) > self.cfg.max_spin), pos_err, yaw_err, topple,
+                off)
+
+    def evaluate(self, params: np.ndarray, keep: bool = True) -> list[Candidate]:
+        """Roll out candidate pushes (n, 4); keep: remember them in self.seen (the robustness fallback's pool)."""
+        d, s, f, hf, contacts, e, v, w = self._pushes(params)
+        t = time.perf_counter()
+        batch = self._rollout(self.model, self.code, v, w)
+        self.step_cost.update((time.perf_counter() - t) / (len(s) * self.horizon))
+        self.rollouts += len(s)
+        costs, pos_err, yaw_err, topple, off = self._scored(batch, v, w)
         cands = [Candidate(float(costs[i]), d[i], float(s[i]), float(f[i]), float(hf[i]), float(e[i]), contacts[i],
                             w[i], float(pos_err[i]), float(yaw_err[i]), float(topple[i]), bool(off[i]), batch[i])
                  for i in range(len(s))]
@@ -448,16 +458,37 @@ class Search:
         params = np.stack([speed * np.cos(ang), speed * np.sin(ang), frac, height], axis=-1).reshape(-1, 4)
         perturbed = self.evaluate(params, keep=False)
         self.checked = True
+        k = len(chosen)
+        # (pushes, K, 1 + m): each push and its perturbations, as the search model and every other member see them
+        groups = [[c] + perturbed[i * m:(i + 1) * m] for i, c in enumerate(chosen)]
+        cost = np.array([[[p.cost for p in g] for g in groups]])
+        topple = np.array([[[p.topple for p in g] for g in groups]])
+        finals = np.array([[[p.trajectory.positions[-1, :2] for p in g] for g in groups]])
+        if self.others:
+            both = np.concatenate([base, params])  # the K pushes, then their K * m perturbations
+            *_, v, w = self._pushes(both)
+            order = np.concatenate([np.arange(k)[:, None], k + np.arange(k * m).reshape(k, m)], axis=1)
+            for model, code in self.others:
+                batch = self._rollout(model, code, v, w)
+                scored = self._scored(batch, v, w)
+                self.rollouts += len(v)
+                cost = np.concatenate([cost, scored[0][order][None]])
+                topple = np.concatenate([topple, scored[3][order][None]])
+                finals = np.concatenate([finals, batch.positions[:, -1, :2][order][None]])
         for i, c in enumerate(chosen):
-            group = perturbed[i * m:(i + 1) * m]
-            c.robust_cost = float(np.mean([min(p.cost, INFEASIBLE) for p in group] + [c.cost]))
-            # the push's topple probability under execution noise: the mean over it and its perturbations
-            c.robust_topple = float(np.mean([c.topple] + [p.topple for p in group]))
-            c.worst_topple = float(max([c.topple] + [p.topple for p in group]))
-            worst = max(group, key=lambda p: p.topple)
+            costs = np.minimum(cost[:, i], INFEASIBLE)
+            costs[0, 0] = c.cost
+            c.robust_cost = float(np.mean(costs))
+            # the push's topple probability under execution noise: the mean over it and its perturbations, each
+            # the highest of the ensemble's members (the pessimistic side of their disagreement)
+            risk = topple[:, i].max(axis=0)
+            c.robust_topple = float(np.mean(risk))
+            c.worst_topple = float(risk.max())
+            worst = perturbed[i * m + int(np.argmax(risk[1:]))]
             c.worst_push = (worst.lin_vel, worst.ang_vel)
-            finals = np.array([p.trajectory.positions[-1, :2] for p in group])
-            c.spread = float(np.sqrt(np.mean(np.sum((finals - c.trajectory.positions[-1, :2]) ** 2, axis=1))))
+            # RMS distance from this push's rest position of the other outcomes: perturbed pushes and members
+            gaps = np.sum((finals[:, i] - c.trajectory.positions[-1, :2]) ** 2, axis=-1).ravel()[1:]
+            c.spread = float(np.sqrt(np.mean(gaps)))
 
 
 def _diverse(cands: list[Candidate], k: int) -> list[Candidate]:
