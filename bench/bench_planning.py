@@ -100,8 +100,10 @@ def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np
 
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
-        max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0, risk: dict | None = None) -> dict:
-    """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator."""
+        max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0, risk: dict | None = None,
+        ensemble: tuple = ()) -> dict:
+    """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator; `ensemble`:
+    further members for the learned planner's robustness check."""
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
     from physdyn_ros.planning.sim_model import ExactSimModel, PybulletModel
@@ -121,7 +123,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
             model, cfg = ExactSimModel(sim), replace(cfg, tip_check=False, physics_check=False)
         elif isinstance(model, PybulletModel):
             cfg = replace(cfg, physics_check=False)  # a planner over hull physics checks nothing twice
-        planner = PushPlanner(model, cfg)
+        planner = PushPlanner(model, cfg, ensemble=ensemble)
         if not oracle:  # the oracle's model reads the simulator's object: there is none before the first trial
             planner.warm_up()
         original = closed_loop.execute
@@ -240,6 +242,9 @@ def main() -> int:
     ap.add_argument("--no-adapt", action="store_true", help="do not aim pushes by the observed slide ratio")
     ap.add_argument("--iterations", type=int, default=0,
                     help="fixed search (48 samples x N CEM iterations, no time budget) to compare variants")
+    ap.add_argument("--ensemble", type=int, default=1,
+                    help="models in the learned planner's robustness check, the shipped model and the shipped "
+                         "members (models/ensemble-*.pt); 0: every shipped member; 1: the model alone")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
@@ -248,6 +253,7 @@ def main() -> int:
 
     from physdyn_ros.planning.sim_model import PybulletModel
     from physdyn_ros.predictor import Predictor
+    from physdyn_ros.resources import ensemble_paths
 
     torch.set_num_threads(args.threads)
     cases = trials(args.trials, args.seed)
@@ -255,8 +261,14 @@ def main() -> int:
     risk["physics_check"] = bool(args.physics_check)
     risk["whole_cloud"] = bool(args.whole_cloud)
     risk["physics_fusion"] = bool(args.physics_fusion)
+    try:
+        members = ensemble_paths(args.ensemble, args.model or "")
+    except ValueError as exc:
+        sys.exit(f"bench_planning: --ensemble: {exc}")
+    ensemble = tuple(Predictor.load(m, threads=args.threads) for m in members)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
-                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk)]
+                   args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk,
+                   ensemble)]
     oracle = None
     if not args.skip_oracle:
         oracle = run("oracle", "oracle (true simulator)", cases, args.max_pushes, args.budget, args.friction,
@@ -309,7 +321,7 @@ def main() -> int:
            "contact_surface_max_mm": round(learned["contact_max_mm"], 3),
            "groups": {g: {k: round(v, 3) for k, v in d.items()} for g, d in learned["groups"].items()},
            "pessimistic": bool(risk.get("pessimistic", False)), "whole_cloud": bool(risk["whole_cloud"]),
-           "physics_fusion": bool(risk["physics_fusion"]),
+           "physics_fusion": bool(risk["physics_fusion"]), "ensemble": 1 + len(ensemble),
            "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
            "pybullet_success_1push": round(hull["first"], 3) if hull else None,
            "pybullet_success_3push": round(hull["final"], 3) if hull else None,

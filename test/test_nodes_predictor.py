@@ -501,3 +501,26 @@ def test_the_service_carries_the_calibrated_spread(rclpy_init, predictor):
             assert t.rest_position_spread == pytest.approx(want.position, rel=1e-5)
             assert t.rest_yaw_spread == pytest.approx(want.yaw, rel=1e-5)
             assert t.topple_probability_spread == pytest.approx(want.topple, abs=1e-6)
+
+
+def test_plan_push_over_an_ensemble(rclpy_init, predictor, tmp_path):
+    """plan_ensemble n > 1: plan_push's robustness check runs on the model and n - 1 members of
+    plan_ensemble_models (the message says over how many); too few members, or the shipped members with another
+    model, stop the configure with the reason."""
+    from physdyn_ros.ros.model import ModelLoadError
+    from physdyn_ros.srv import PlanPush
+
+    from test_nodes_support import make_tiny_checkpoint
+
+    other = tmp_path / "other.pt"
+    make_tiny_checkpoint(other, seed=1, name="tiny-other")
+    for params, reason in (({"plan_ensemble": 2}, "shipped members belong to the shipped model"),
+                           ({"plan_ensemble": 3, "plan_ensemble_models": [str(other)]}, "needs 2 further members")):
+        with pytest.raises(ModelLoadError, match=reason):
+            predictor(**params)
+    node = predictor(plan_max_topple_probability=1.0, plan_ensemble=2, plan_ensemble_models=["", str(other)])
+    c = Client(rclpy_init)
+    plan = c.node.create_client(PlanPush, "plan_push")
+    with Spinner(node, c.node):
+        res = call(plan, plan_request(cloud=xyz_to_cloud(CLOUD, "world")), timeout=30)
+        assert res.success and "over 2 models" in res.message, res.message

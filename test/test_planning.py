@@ -600,3 +600,18 @@ def test_an_ensemble_of_learned_models_plans_with_each_members_own_code(tmp_path
     single = PushPlanner(lead, cfg).plan(box_cloud(), Pose2D(0, 0, 0), goal)
     assert plan.rollouts > single.rollouts  # the member's roll-outs of the robustness check
     assert "over 2 models" in plan.message and plan.model_id == lead.model_id
+
+
+def test_ensemble_paths_name_the_members_or_say_why_not():
+    from physdyn_ros.resources import ensemble_models, ensemble_paths
+
+    shipped = [str(p) for p in ensemble_models()]
+    assert ensemble_paths(1) == [] and ensemble_paths(0) == shipped
+    assert ensemble_paths(0, "mine.pt") == [] and ensemble_paths(0, "mine.pt", ["a.pt", ""]) == ["a.pt"]
+    assert ensemble_paths(3, "mine.pt", ["a.pt", "", "b.pt", "c.pt"]) == ["a.pt", "b.pt"]
+    with pytest.raises(ValueError, match="belong to the shipped model"):
+        ensemble_paths(2, "mine.pt")
+    with pytest.raises(ValueError, match="needs 2 further members, the names give 1"):
+        ensemble_paths(3, "mine.pt", ["a.pt"])
+    with pytest.raises(ValueError, match=f"needs {len(shipped) + 1} further members, the package ships"):
+        ensemble_paths(len(shipped) + 2)

@@ -55,7 +55,7 @@ from ..ros.cloud import cloud_to_xyz
 from ..ros.convert import pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy, yaw_quaternion
 from ..ros.diagnostics import OK, Diagnostics, RefusalWindow, Report
 from ..ros.lifecycle import ManagedNode
-from ..ros.model import load_predictor
+from ..ros.model import load_ensemble, load_predictor
 from ..ros import plan_push
 from ..ros.params import declare
 from ..ros.pending import ParkedTwist, PendingRefinement, refine
@@ -143,6 +143,13 @@ class PredictorNode(ManagedNode):
         declare(self, "plan_physics_fusion", True, "with whole clouds, the physics check's verdict is the model's "
                 "topple fusion with the solid's runs, where the checkpoint has .topple_fusion.json weights "
                 "(physdyn_ros.topple_fusion); false: the share of toppled runs vetoes")
+        declare(self, "plan_ensemble", 0, "models in plan_push's robustness check (read on configure): n > 1 adds "
+                "n - 1 members (plan_ensemble_models, else the shipped ones beside the shipped model), 1 = the model "
+                "alone, 0 = every member named or shipped (none with another model and no plan_ensemble_models); a "
+                "push's topple risk is the highest member's, its spread widened by their disagreement", low=0,
+                high=16)
+        declare(self, "plan_ensemble_models", [""], "checkpoints of the further ensemble members (read on "
+                "configure); empty entries ignored; none: the shipped members (only with the shipped model)")
         declare(self, "plan_position_tolerance", 0.02, "m, default position tolerance of plan_push", low=1e-4)
         declare(self, "plan_yaw_tolerance", 0.1745, "rad, default yaw tolerance of plan_push (>= pi: any yaw)",
                 low=1e-4)
@@ -198,7 +205,9 @@ class PredictorNode(ManagedNode):
                                       "spread only (rest_position_spread and rest_yaw_spread NaN)")
         from ..planning import PushPlanner
 
-        self.planner = PushPlanner(self.predictor)
+        members = load_ensemble(self, int(p("plan_ensemble")), list(p("plan_ensemble_models")), p("model_path"),
+                                p("device"), int(p("num_threads")), p("precision"))
+        self.planner = PushPlanner(self.predictor, ensemble=members)
         self.planner.warm_up()  # timing calibration and first-call costs, before the node serves
         self.pub_traj = self.configured_publisher(PredictedTrajectory, "predicted_trajectory", LATCHED)
         self.pub_path = self.configured_publisher(Path, "predicted_path", LATCHED)

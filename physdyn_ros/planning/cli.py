@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--execute", action="store_true", help="push the object in pybullet and report the outcome")
     parser.add_argument("--max-pushes", type=int, default=1, help="with --execute: re-plan up to this many pushes")
     parser.add_argument("--model", default=None, help="checkpoint (default: the shipped model)")
+    parser.add_argument("--ensemble", type=int, default=0,
+                        help="models in the robustness check: the model and the shipped members (only with the "
+                             "shipped model); 1: the model alone; 0 (default): every shipped member, none with --model")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -74,6 +77,7 @@ def _print_plan(plan: PushPlan, prefix: str = "") -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..predictor import Predictor, load_cloud
+    from ..resources import ensemble_paths
 
     start = Pose2D(args.start[0], args.start[1], math.radians(args.start[2]))
     yaw_tol = math.pi if args.yaw_tolerance >= 180 else math.radians(args.yaw_tolerance)
@@ -84,7 +88,11 @@ def run(args: argparse.Namespace) -> int:
         raise PlanningError("--execute needs an object to simulate (--category or --mesh), not --cloud")
     if args.max_pushes < 1:
         raise PlanningError(f"--max-pushes must be >= 1, got {args.max_pushes}")
-    planner = PushPlanner(Predictor.load(args.model, threads=1), config)
+    try:
+        members = [Predictor.load(m, threads=1) for m in ensemble_paths(args.ensemble, args.model or "")]
+    except ValueError as exc:
+        raise PlanningError(f"--ensemble: {exc}") from None
+    planner = PushPlanner(Predictor.load(args.model, threads=1), config, ensemble=members)
     planner.warm_up()
     if args.cloud:
         plan = planner.plan(load_cloud(args.cloud), start, goal)

@@ -35,7 +35,11 @@ perturbed rest positions from the nominal one) and that probability are reported
 under that noise (a search that converged at the edge of the topple limit), the best pushes of the whole search
 whose own risk lies under half the limit are checked the same way before the plan is refused. The mean, not
 the worst perturbed push, is held to the limit: one unlucky perturbation of an otherwise safe push would refuse
-objects the closed loop moves, without fewer topples.
+objects the closed loop moves, without fewer topples. With an ensemble (`others`: further models and their codes of
+the object) the check also rolls each push and its perturbations out on every member: a roll-out's topple
+probability is then the highest member's, the robust cost the mean over every member's outcomes, and the spread
+counts the members' rest positions too. The search itself stays on the first model (the members cost only the
+check's roll-outs).
 
 Cost of a candidate (lower is better), from its predicted final state:
     (position error / position tolerance)^2 + (yaw error / yaw tolerance)^2 (yaw ignored if tolerance >= pi or

@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 from rclpy.node import Node
 
@@ -68,3 +68,28 @@ def load_predictor(node: Node, model_path: str, device: str, num_threads: int,
                            f"batch 1 in {batch1}{', topples fused with physics' if topple_fusion else ''}) "
                            f"in {time.monotonic() - t0:.2f} s")
     return predictor
+
+
+def load_ensemble(node: Node, size: int, paths: Sequence[str], model_path: str, device: str, num_threads: int,
+                  precision: str = "auto") -> list["Predictor"]:
+    """The further members of a `size`-model ensemble, the node's model its first (resources.ensemble_paths: the
+    `paths` given, else the shipped members with the shipped model; size 0: all of them), loaded like the model.
+    Raises ModelLoadError with the reason (too few members, one that cannot be loaded)."""
+    from ..predictor import Predictor
+    from ..resources import ensemble_paths
+
+    try:
+        found = ensemble_paths(size, model_path, paths)
+    except ValueError as exc:
+        raise ModelLoadError(f"plan_ensemble {size}: {exc}") from None
+    t0 = time.monotonic()
+    members = []
+    for path in found:
+        try:
+            members.append(Predictor.load(path, device=device, threads=max(1, int(num_threads)), precision=precision))
+        except Exception as exc:  # noqa: BLE001 - missing, corrupt or incompatible: the node refuses to start
+            raise ModelLoadError(f"cannot load ensemble member {path}: {exc}") from exc
+    if members:
+        node.get_logger().info(f"plan_push's robustness check over {1 + len(members)} models: the model and "
+                               f"{', '.join(m.model_id for m in members)} ({time.monotonic() - t0:.2f} s)")
+    return members
