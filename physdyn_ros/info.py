@@ -72,9 +72,10 @@ def run(args: argparse.Namespace) -> int:
         info["interfaces"] = f"not built ({exc}); run setup.sh"
     info["default_model"] = str(DEFAULT_MODEL) if DEFAULT_MODEL.exists() else "not shipped"
     if DEFAULT_MODEL.exists():
-        try:
-            from physdyn_ros.learn.checkpoint import load_checkpoint
+        from physdyn_ros.learn.checkpoint import load_checkpoint
+        from physdyn_ros.resources import ensemble_models
 
+        try:
             info["default_model_id"] = load_checkpoint(DEFAULT_MODEL)["model_id"]
         except Exception as exc:  # noqa: BLE001 - info reports a broken model, it does not fail on it
             info["default_model_id"] = f"unreadable ({exc})"
@@ -85,6 +86,13 @@ def run(args: argparse.Namespace) -> int:
         # and the nodes' rest_spread the other
         info["topple_fusion"] = _beside(FusionWeights.load, fusion_path(DEFAULT_MODEL), "pushes")
         info["spread_calibration"] = _beside(SpreadCalibration.load, spread_path(DEFAULT_MODEL), "upright pushes")
+        members = []  # the planner's robustness check runs on these too (plan_ensemble)
+        for path in ensemble_models():
+            try:
+                members.append(str(load_checkpoint(path)["model_id"]))
+            except Exception as exc:  # noqa: BLE001 - reported, as a broken default model is
+                members.append(f"{path.name} unreadable ({exc})")
+        info["ensemble"] = ", ".join(members) or "none shipped"
     if args.json:
         print(json.dumps(info, indent=2))
     else:

@@ -72,3 +72,29 @@ def test_shipped_model_flags_toppling(rollouts):
     prob = np.array([t.topple_probability for t in trajs])
     assert np.all(prob[d["toppled"]] > 0.5), prob[d["toppled"]]
     assert np.mean(prob[~d["toppled"]] < 0.5) >= 0.7, prob[~d["toppled"]]
+
+
+def test_shipped_ensemble_members_are_their_own_models_and_as_good():
+    """Each shipped member (models/ensemble-*.pt) is a checkpoint of its own (model id, topple head), steps like the
+    shipped model, is documented in the model card, and meets the shipped model's bounds on the fixed sequences."""
+    from physdyn_ros.predictor import Predictor
+    from physdyn_ros.resources import ensemble_models
+
+    lead = Predictor.load()
+    card = (DEFAULT_MODEL.parent / "MODEL_CARD.md").read_text()
+    paths = ensemble_models()
+    assert len(paths) == 4
+    total = DEFAULT_MODEL.stat().st_size + sum(p.stat().st_size for p in paths)
+    assert total <= 30 * 2**20
+    d = dict(np.load(FIXTURE))
+    slide = np.flatnonzero(~d["toppled"])
+    ids = {lead.model_id}
+    for path in paths:
+        member = Predictor.load(path)
+        assert member.model_id not in ids and member.model_id in card and member.dt == lead.dt
+        ids.add(member.model_id)
+        trajs = [member.rollout(d["cloud"][i], d["lin_vel"][i, 0], d["ang_vel"][i, 0], horizon=60,
+                                position=d["pos"][i, 0], orientation=d["quat"][i, 0]) for i in range(len(d["cloud"]))]
+        final = np.array([np.linalg.norm(trajs[i].positions[-1] - d["pos"][i, -1]) for i in slide]) * 100
+        assert np.median(final) < MAX_FINAL_POS_CM, (path.name, np.median(final))
+        assert all(trajs[i].topple_probability > 0.5 for i in np.flatnonzero(d["toppled"])), path.name
