@@ -242,9 +242,10 @@ def main() -> int:
     ap.add_argument("--no-adapt", action="store_true", help="do not aim pushes by the observed slide ratio")
     ap.add_argument("--iterations", type=int, default=0,
                     help="fixed search (48 samples x N CEM iterations, no time budget) to compare variants")
-    ap.add_argument("--ensemble", type=int, default=1,
+    ap.add_argument("--ensemble", type=int, default=0,
                     help="models in the learned planner's robustness check, the shipped model and the shipped "
-                         "members (models/ensemble-*.pt); 0: every shipped member; 1: the model alone")
+                         "members (models/ensemble-*.pt); 0 (default, as plan_push): every shipped member; 1: the "
+                         "model alone")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
