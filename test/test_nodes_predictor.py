@@ -524,3 +524,8 @@ def test_plan_push_over_an_ensemble(rclpy_init, predictor, tmp_path):
     with Spinner(node, c.node):
         res = call(plan, plan_request(cloud=xyz_to_cloud(CLOUD, "world")), timeout=30)
         assert res.success and "over 2 models" in res.message, res.message
+        # by object_id, a feature without points: the members cannot encode it, the model checks alone and says so
+        c.features.publish(feature_msg(node.predictor, object_id="box"))
+        assert wait_for(lambda: node._features.get("box"))
+        res = call(plan, plan_request(object_id="box"), timeout=30)
+        assert res.success and "checked by the model alone" in res.message, res.message

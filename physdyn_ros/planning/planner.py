@@ -59,8 +59,10 @@ class PushPlanner:
     def __init__(self, model: DynamicsModel, config: PlannerConfig = PlannerConfig(),
                  ensemble: Sequence[DynamicsModel] = ()) -> None:
         """`ensemble`: further models of the same dynamics (members trained from other seeds and data, e.g.
-        resources.ENSEMBLE_MODELS loaded): the search runs on `model`, the robustness check on every member, each
-        push's topple risk the highest of theirs and its spread widened by their disagreement."""
+        the checkpoints resources.ensemble_paths names, loaded): the search runs on `model`, the robustness check on
+        every member too, each push's topple risk the highest of theirs and its spread widened by their
+        disagreement. Members encode the object's points: a shape code without points is checked by `model`
+        alone (the plan's message says so)."""
         for member in ensemble:
             if abs(float(member.dt) - float(model.dt)) > 1e-9:
                 raise ValueError(f"ensemble member {member.model_id} steps {member.dt} s, the model {model.dt} s")
@@ -136,16 +138,17 @@ class PushPlanner:
                 raise PlanningError(f"cloud must be (N >= 4, 3) finite points, got shape {cloud.shape}")
         return code, cloud
 
-    def _members(self, code: Any, cloud: Optional[np.ndarray]) -> list[tuple[DynamicsModel, Any]]:
-        """(member, its code of the object) for each ensemble member: each encodes the points itself (the cloud,
-        else the code's own points; a code without points cannot be re-encoded: PlanningError)."""
+    def _members(self, code: Any, cloud: Optional[np.ndarray]) -> tuple[list[tuple[DynamicsModel, Any]], str]:
+        """(member, its code of the object) for each ensemble member, each encoding the points itself (the cloud,
+        else the code's own points), and a note for the plan's message: a code without points cannot be re-encoded,
+        the model then checks alone."""
         if not self.ensemble:
-            return []
+            return [], ""
         points = cloud if cloud is not None else getattr(code, "points", None)
         if points is None:
-            raise PlanningError("the ensemble's members need the object's points: give the cloud with the shape code")
+            return [], "checked by the model alone: the ensemble's members need the object's points, the code has none"
         try:
-            return [(member, member.encode(points)) for member in self.ensemble]
+            return [(member, member.encode(points)) for member in self.ensemble], ""
         except ValueError as exc:
             raise PlanningError(f"bad cloud: {exc}") from None
 
@@ -205,10 +208,12 @@ class PushPlanner:
             raise PlanningError(f"goal unreachable: it is {dist:.3f} m away, but a push of at most "
                                 f"{cfg.max_speed:g} m/s slides at most {cfg.reach():.3f} m at friction "
                                 f">= {cfg.min_friction:g} (v^2 / (2 mu g)); raise max_speed or push twice")
+        others, note = self._members(code, cloud)
         search = Search(self.model, self._step_cost, code, body, start, goal, cfg, horizon, t0, self.physics(cfg),
-                        self._members(code, cloud))
+                        others)
         best = search.run()
-        return self._result(search, best, t0)
+        plan = self._result(search, best, t0)
+        return replace(plan, message=f"{plan.message}; {note}") if note else plan
 
     def _no_push(self, start: Pose2D, goal: Goal, body: PushBody, code: Any, horizon: int, t0: float) -> PushPlan:
         z = float(np.asarray(code.centroid)[2])
