@@ -89,9 +89,10 @@ def run(args: argparse.Namespace) -> int:
     if args.max_pushes < 1:
         raise PlanningError(f"--max-pushes must be >= 1, got {args.max_pushes}")
     try:
-        members = [Predictor.load(m, threads=1) for m in ensemble_paths(args.ensemble, args.model or "")]
+        paths = ensemble_paths(args.ensemble, args.model or "")
     except ValueError as exc:
         raise PlanningError(f"--ensemble: {exc}") from None
+    members = [Predictor.load(m, threads=1) for m in paths]
     planner = PushPlanner(Predictor.load(args.model, threads=1), config, ensemble=members)
     planner.warm_up()
     if args.cloud:

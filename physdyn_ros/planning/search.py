@@ -251,13 +251,6 @@ class Search:
         f = np.clip(params[:, 2], -self.cfg.max_offset_fraction, self.cfg.max_offset_fraction)
         return d, s, f, np.clip(params[:, 3], 0.0, 1.0)
 
-    def _pushes(self, params: np.ndarray) -> tuple[np.ndarray, ...]:
-        """(direction, speed, offset fraction, height fraction, contact, offset, lin_vel, ang_vel) of pushes (n, 4)."""
-        d, s, f, hf = self._project(params)
-        contacts, e = self.body.contacts(d, f, self.h_lo + hf * (self.h_hi - self.h_lo))
-        v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
-        return d, s, f, hf, contacts, e, v, self.body.angular_velocity(v, contacts)
-
     def _rollout(self, model: DynamicsModel, code: Any, v: np.ndarray, w: np.ndarray) -> TrajectoryBatch:
         """One model's roll-outs of the pushes (v, w) from the start over the search horizon."""
         p0 = np.array([self.start.x, self.start.y, self.z0])
@@ -276,7 +269,10 @@ class Search:
 
     def evaluate(self, params: np.ndarray, keep: bool = True) -> list[Candidate]:
         """Roll out candidate pushes (n, 4); keep: remember them in self.seen (the robustness fallback's pool)."""
-        d, s, f, hf, contacts, e, v, w = self._pushes(params)
+        d, s, f, hf = self._project(params)
+        contacts, e = self.body.contacts(d, f, self.h_lo + hf * (self.h_hi - self.h_lo))
+        v = np.concatenate([s[:, None] * d, np.zeros((len(s), 1))], axis=1)
+        w = self.body.angular_velocity(v, contacts)
         t = time.perf_counter()
         batch = self._rollout(self.model, self.code, v, w)
         self.step_cost.update((time.perf_counter() - t) / (len(s) * self.horizon))
@@ -462,23 +458,21 @@ class Search:
         params = np.stack([speed * np.cos(ang), speed * np.sin(ang), frac, height], axis=-1).reshape(-1, 4)
         perturbed = self.evaluate(params, keep=False)
         self.checked = True
-        k = len(chosen)
-        # (pushes, K, 1 + m): each push and its perturbations, as the search model and every other member see them
-        groups = [[c] + perturbed[i * m:(i + 1) * m] for i, c in enumerate(chosen)]
-        cost = np.array([[[p.cost for p in g] for g in groups]])
-        topple = np.array([[[p.topple for p in g] for g in groups]])
-        finals = np.array([[[p.trajectory.positions[-1, :2] for p in g] for g in groups]])
-        if self.others:
-            both = np.concatenate([base, params])  # the K pushes, then their K * m perturbations
-            *_, v, w = self._pushes(both)
-            order = np.concatenate([np.arange(k)[:, None], k + np.arange(k * m).reshape(k, m)], axis=1)
+        # (models, K, 1 + m): each push and its perturbations, as the search model and every other member see them
+        flat = [p for i, c in enumerate(chosen) for p in [c] + perturbed[i * m:(i + 1) * m]]
+        shape = (1, len(chosen), 1 + m)
+        cost = np.array([p.cost for p in flat]).reshape(shape)
+        topple = np.array([p.topple for p in flat]).reshape(shape)
+        finals = np.array([p.trajectory.positions[-1, :2] for p in flat]).reshape(shape + (2,))
+        if self.others:  # the very pushes the search model rolled out
+            v, w = np.array([p.lin_vel for p in flat]), np.array([p.ang_vel for p in flat])
             for model, code in self.others:
                 batch = self._rollout(model, code, v, w)
                 scored = self._scored(batch, v, w)
                 self.rollouts += len(v)
-                cost = np.concatenate([cost, scored[0][order][None]])
-                topple = np.concatenate([topple, scored[3][order][None]])
-                finals = np.concatenate([finals, batch.positions[:, -1, :2][order][None]])
+                cost = np.concatenate([cost, scored[0].reshape(shape)])
+                topple = np.concatenate([topple, scored[3].reshape(shape)])
+                finals = np.concatenate([finals, batch.positions[:, -1, :2].reshape(shape + (2,))])
         for i, c in enumerate(chosen):
             costs = np.minimum(cost[:, i], INFEASIBLE)
             costs[0, 0] = c.cost
