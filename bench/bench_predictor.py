@@ -36,8 +36,8 @@ load then weighs on both sides of a ratio alike), with torch on one thread:
   fraction of that precision's matmul peak, the same per core against pybullet; the model's roll-out alone
   (DynamicsModel.rollout_raw: no input checks, frames, topple head or integration) likewise; and the LSTM's two
   matrix products of one step at --batch alone (lstm_products_ms: the kernel's shapes), so that the kernel's
-  time splits into products and elementwise work. Where the bf16 kernel's cell and prior run in C
-  (learn/cell_bf16.py), the same bf16 batch with the TorchScript cell and prior is timed beside it.
+  time splits into products and elementwise work. Where the bf16 kernel's cell, head and prior run in C
+  (learn/cell_bf16.py), the same bf16 batch with the TorchScript kernel's is timed beside it.
   --batch-threads > 1 adds a multi-thread line.
 * peaks: a plain 1024^3 matmul (torch) in fp32 and in bf16 on one thread, best of 3 just before and 3 just after
   each round's batch of that precision; each round's fraction of peak uses that round's peak, the median over
@@ -230,7 +230,7 @@ def kernel_rollout(pred: Any, inputs: tuple, horizon: int, precision: str = "fp3
 
 @contextmanager
 def torchscript_cell() -> Iterator[None]:
-    """bf16 roll-outs with the TorchScript kernel's cell and prior where the C ones would run (timed beside it)."""
+    """bf16 roll-outs with the TorchScript kernel's cell, head and prior where the C ones would run (timed beside)."""
     from physdyn_ros.learn import cell_bf16
 
     available = cell_bf16.available
@@ -469,7 +469,7 @@ def main() -> int:
                  if pyb_cpu_s else ""))
         ts_rate = float(np.median(f["ts_cell_rate"])) if f["ts_cell_rate"] else None
         if ts_rate:
-            print(f"  the same batch with the TorchScript cell and prior: {ts_rate:.0f} trajectories/s, "
+            print(f"  the same batch with the TorchScript cell, head and prior: {ts_rate:.0f} trajectories/s, "
                   f"{ts_rate * flops / 1e9 / peak:.0%} of the peak (the C ones {rate / ts_rate:.2f}x)")
         summary[prec] = {"batched_traj_per_s_1thread": r3(rate), "batched_gflops_1thread": r3(rate * flops / 1e9),
                          "batched_fraction_of_peak": r3(fraction), "batched_speedup_vs_pybullet_per_core": r3(speedup),

@@ -251,14 +251,15 @@ def test_c_cell_step_is_torchs_up_to_float32_rounding():
 
 @needs_c_cell
 def test_c_prior_is_prior_raw():
-    """The sliding prior in C against prior_raw, added to a step's outputs through the kernel's strides: sliding,
-    spinning, both (coupled and not), at rest, stopping within the step and NaN / inf inputs: equal up to float32
-    rounding, NaN where prior_raw gives NaN; the output columns past 12 untouched."""
+    """The sliding prior in C (the step tail's, with a head of zeros: its outputs are the prior alone) against
+    prior_raw through the kernel's strides: sliding, spinning, both (coupled and not), at rest, stopping within the
+    step and NaN / inf inputs: equal up to float32 rounding, NaN where prior_raw gives NaN; the topple column and
+    the other steps untouched."""
     from physdyn_ros.conventions import DT
     from physdyn_ros.learn.prior import prior_raw
 
     gen = torch.Generator().manual_seed(9)
-    rows = 64
+    rows, hidden = 64, 16
     x = torch.randn(rows, 6, generator=gen)
     x[:8] = 0.0  # at rest
     x[8:16, 5] = 0.0  # sliding only
@@ -268,27 +269,109 @@ def test_c_prior_is_prior_raw():
     prior = torch.stack([torch.rand(rows, generator=gen) * 5.0, torch.rand(rows, generator=gen) * 50.0,
                          (torch.arange(rows) % 2).float()], 1)
     scale_in, scale_out = torch.rand(6, generator=gen) + 0.5, torch.rand(13, generator=gen) + 0.5
-    y = torch.randn(rows, 3, 13, generator=gen)  # step 1 of a (rows, steps, 13) output block
-    before, want = y.clone(), y.clone()
-    want[:, 1, :12] += prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
-    (_, prior_add), _ = cell_bf16._cell()
-    step = y[:, 1]
-    prior_add(x.data_ptr(), x.stride(0), prior.data_ptr(), prior.stride(0), scale_in.data_ptr(), scale_out.data_ptr(),
-              DT, step.data_ptr(), step.stride(0), rows)
+    want = prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
+    y, xs = torch.full((rows, 3, 13), 5.0), torch.zeros(rows, 2, 6)
+    zeros, gain = torch.zeros(hidden // 2, 16, 2, dtype=torch.bfloat16), torch.zeros(6)
+    b16, z = torch.zeros(16), torch.zeros(rows, 6 + hidden, dtype=torch.bfloat16)
+    g, c = torch.zeros(rows, 4 * hidden, dtype=torch.bfloat16), torch.zeros(rows, hidden)
+    tail = cell_bf16.Tail(w_pairs=zeros.data_ptr(), b_head=b16.data_ptr(), prior=prior.data_ptr(), p_stride=3,
+                          scale_in=scale_in.data_ptr(), scale_out=scale_out.data_ptr(), dt=DT, gain=gain.data_ptr(),
+                          x=x.data_ptr(), x_stride=6, y=y[:, 1].data_ptr(), y_stride=y.stride(0),
+                          xs=xs[:, 1].data_ptr(), xs_stride=xs.stride(0), zx=z.data_ptr(), z_stride=z.stride(0))
+    (_, last), _ = cell_bf16._cell()
+    assert last(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), z[:, 6:].data_ptr(), z.stride(0), rows, hidden,
+                tail) == 0
     # within float32 rounding of each row's operands (torch's sqrt may differ by one ulp from C's correctly rounded
     # one), NaN where prior_raw gives NaN
     size = (x * scale_in).abs().nan_to_num(posinf=0.0).amax(1, keepdim=True) / scale_out[:12].min()
-    got, ref = y[:, 1, :12], want[:, 1, :12]
-    assert torch.all(((got - ref).abs() <= 1e-6 * (1.0 + size)) | (got.isnan() & ref.isnan())), (got - ref).abs()
-    assert y[32:35].isnan().any() and torch.equal(y.isnan(), want.isnan())
-    assert torch.equal(y[:, 1, 12], want[:, 1, 12]) and torch.equal(y[:, 0], want[:, 0])
-    assert torch.equal(y[:8], before[:8]) and (y[8:, 1] != before[8:, 1]).any(1).all()  # rows at rest: prior 0
+    got = y[:, 1, :12]
+    assert torch.all(((got - want).abs() <= 1e-6 * (1.0 + size)) | (got.isnan() & want.isnan())), (got - want).abs()
+    assert got[32:35].isnan().any() and torch.equal(got.isnan(), want.isnan())
+    assert torch.all(y[:, 1, 12] == 0.0) and torch.all(y[:, [0, 2]] == 5.0)
+    assert torch.all(got[:8] == 0.0) and (got[8:] != 0.0).any(1).all()  # rows at rest: prior 0
+
+
+def _tail_case(rows: int, hidden: int, observed: bool, with_prior: bool, gen: torch.Generator) -> dict:
+    """Operands of one step tail (c_bf16_lstm_rollout's layout) and what torch computes from them."""
+    from physdyn_ros.conventions import DT
+    from physdyn_ros.learn.prior import prior_raw
+
+    z = torch.full((rows, 10 + hidden + 4), 7.0, dtype=torch.bfloat16)  # [x (6), 4 others, h, 4 others]
+    h = z[:, 10:10 + hidden]
+    x = torch.randn(rows, 6, generator=gen)
+    x[:4] = 0.0  # at rest: the prior adds nothing
+    z[:, :6] = x
+    w_out = torch.randn(hidden, 13, generator=gen).to(torch.bfloat16)
+    w_skip, b_head, gain = torch.randn(6, 13, generator=gen), torch.randn(13, generator=gen), torch.rand(6) + 0.5
+    x_obs = torch.randn(rows, 2, 6, generator=gen)
+    prior = torch.stack([torch.rand(rows, generator=gen) * 5.0, torch.rand(rows, generator=gen) * 50.0,
+                         (torch.arange(rows) % 2).float()], 1)
+    scale_in, scale_out = torch.rand(6, generator=gen) + 0.5, torch.rand(13, generator=gen) + 0.5
+    g = (torch.randn(rows, 4 * hidden, generator=gen) * 3.0).to(torch.bfloat16)
+    c = torch.randn(rows, hidden, generator=gen)
+    ref_c, ref_h = _torch_cell(g, c)
+    y = b_head + x @ w_skip + ref_h.float() @ w_out.float()  # the head's products in float32, not rounded
+    head = y.clone()
+    if with_prior:
+        y[:, :12] += prior_raw(x, prior[:, 0], prior[:, 1], prior[:, 2], scale_in, scale_out)
+    nxt = x_obs[:, 1] if observed else x + y[:, :6] * gain
+    w_pairs = torch.zeros(hidden // 2, 16, 2, dtype=torch.bfloat16)
+    w_pairs[:, :13] = w_out.reshape(hidden // 2, 2, 13).transpose(1, 2)
+    skip16, b16 = torch.zeros(6, 16), torch.zeros(16)
+    skip16[:, :13], b16[:13] = w_skip, b_head
+    ys, xs = torch.full((rows, 3, 13), 5.0), torch.full((rows, 4, 6), 5.0)
+    tail = cell_bf16.Tail(w_pairs=w_pairs.data_ptr(), w_skip=skip16.data_ptr(), b_head=b16.data_ptr(), dt=DT,
+                          x_obs=x_obs[:, 1].data_ptr() if observed else None, obs_stride=x_obs.stride(0),
+                          gain=gain.data_ptr(), x=x.data_ptr(), x_stride=6, y=ys[:, 1].data_ptr(),
+                          y_stride=ys.stride(0), xs=xs[:, 2].data_ptr(), xs_stride=xs.stride(0), zx=z.data_ptr(),
+                          z_stride=z.stride(0))
+    if with_prior:
+        tail.prior, tail.p_stride = prior.data_ptr(), 3
+        tail.scale_in, tail.scale_out = scale_in.data_ptr(), scale_out.data_ptr()
+    return dict(z=z, h=h, x=x, g=g, c=c, ys=ys, xs=xs, tail=tail, keep=(w_pairs, skip16, b16, x_obs, prior, scale_in,
+                scale_out, gain), ref_c=ref_c, ref_h=ref_h, y=y, head=head, next=nxt)
+
+
+@needs_c_cell
+@pytest.mark.parametrize("observed,with_prior", [(False, True), (True, True), (False, False)])
+def test_c_step_tail_is_the_torch_step(observed, with_prior):
+    """The last layer's cell with the step tail in C against torch: the cell as the cell alone; the head's output
+    within float32 rounding of b_head + x w_skip + h w_out (its products in float32), plus the prior where there
+    is one; the next input (observed, or integrated) stored in x, in the record and, rounded to bf16, in the row
+    buffer; nothing else written."""
+    gen = torch.Generator().manual_seed(11)
+    rows, hidden = 37, 48
+    case = _tail_case(rows, hidden, observed, with_prior, gen)
+    (_, last), _ = cell_bf16._cell()
+    g, c, z = case["g"], case["c"], case["z"]
+    assert last(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), case["h"].data_ptr(), z.stride(0), rows, hidden,
+                case["tail"]) == 0
+    assert torch.allclose(c, case["ref_c"], rtol=1e-6, atol=1e-6)
+    # h equal but where a last-bit difference of the sigmoids flips its bf16 rounding; the head then reads that h
+    flipped = (case["h"] != case["ref_h"]).any(1)
+    assert flipped.float().mean() < 0.3
+    ys, xs, want = case["ys"], case["xs"], case["y"]
+    size = 1.0 + want.abs()
+    assert torch.all((ys[~flipped, 1] - want[~flipped]).abs() <= 1e-5 * size[~flipped]), (ys[:, 1] - want).abs().max()
+    assert torch.all((ys[:, 1] - want).abs() <= 0.05 * size)
+    nxt = case["next"]
+    close = (case["x"] - nxt).abs() <= 1e-5 * (1.0 + nxt.abs())
+    assert torch.all(close[~flipped]) and torch.equal(case["x"], xs[:, 2])
+    assert torch.equal(z[:, :6], case["x"].to(torch.bfloat16))  # rounded to nearest even, as torch rounds
+    assert torch.all(ys[:, [0, 2]] == 5.0) and torch.all(xs[:, [0, 1, 3]] == 5.0)  # other steps untouched
+    assert torch.all(z[:, 6:10] == 7.0) and torch.all(z[:, 10 + hidden:] == 7.0)
+    if with_prior:  # the prior moved every moving row's outputs, and none of those at rest
+        moved = ((want - case["head"]).abs() > 1e-3).any(1)
+        assert not moved[:4].any() and moved[4:].all()
+    assert last(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), case["h"].data_ptr(), z.stride(0), rows, 40,
+                case["tail"]) == -1
 
 
 @needs_c_cell
 def test_c_cell_rollout_is_the_torchscript_bf16_kernel(predictors):
     """The shipped model's bf16 roll-out through the C cell against the TorchScript bf16 kernel, 64 pushes of 60
-    steps: far closer to it than both are to float32 (the differences are the sigmoids' last bits)."""
+    steps: both ran, and the C one is no farther from float32 (its head's products are not rounded to bf16; the
+    other differences are the sigmoids' last bits)."""
     model = predictors["fp32"]._model
     gen = torch.Generator().manual_seed(8)
     rows = 64
@@ -297,14 +380,18 @@ def test_c_cell_rollout_is_the_torchscript_bf16_kernel(predictors):
     ang = torch.randn(rows, 3, generator=gen) * torch.tensor([0.3, 0.3, 3.0])
     with torch.inference_mode():
         c_raw, c_xs = model.rollout_raw(feature, vel, ang, 60, precision="bf16")
-        ref32, _ = model.rollout_raw(feature, vel, ang, 60, precision="fp32")
+        ref32, ref_xs = model.rollout_raw(feature, vel, ang, 60, precision="fp32")
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(cell_bf16, "available", lambda hidden: False)
             ts_raw, ts_xs = model.rollout_raw(feature, vel, ang, 60, precision="bf16")
     assert not torch.equal(c_raw, ts_raw)  # each kernel ran
-    to_ts, to_fp32 = (c_raw - ts_raw).abs().mean().item(), (ts_raw - ref32).abs().mean().item()
-    assert to_ts < 0.25 * to_fp32, (to_ts, to_fp32)
-    assert (c_xs - ts_xs).abs().max().item() <= 0.02 * max(ts_xs.abs().max().item(), 1.0)
+    c_err, ts_err = (c_raw - ref32).abs().mean().item(), (ts_raw - ref32).abs().mean().item()
+    assert c_err <= 1.05 * ts_err, (c_err, ts_err)
+    # per push, the largest difference of the inputs over the roll-out (a few pushes diverge in any two kernels):
+    # the typical push's C inputs stay nearer the TorchScript kernel's than either is to float32
+    worst = lambda a, b: (a - b).abs().amax((1, 2)).median().item()  # noqa: E731
+    assert worst(c_xs, ref_xs) <= 1.1 * worst(ts_xs, ref_xs)
+    assert worst(c_xs, ts_xs) <= 0.75 * worst(ts_xs, ref_xs)
 
 
 def test_c_cell_takes_only_whole_vectors_of_hidden_units():

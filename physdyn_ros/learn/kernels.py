@@ -17,7 +17,7 @@
     fused_lstm_rollout  TorchScript, no autograd: one product per layer and step, sigmoid only, buffers made once
     bf16_lstm_rollout   fused_lstm_rollout with bf16 matrix products (fp32 accumulation, fp32 state): batched
                         roll-outs on CPUs with bf16 arithmetic (precision "bf16", or "auto" where the CPU has it);
-                        where the CPU has AVX-512 BF16, cell_bf16.c_bf16_lstm_rollout: its cell step and prior in C
+                        where the CPU has AVX-512 BF16, cell_bf16.c_bf16_lstm_rollout: its cell, head and prior in C
     numpy_lstm_rollout  numpy, batch 1 on the CPU: the Predictor's latency path (always float32)
     mlp_rollout         the paper's memoryless MLP baseline, eagerly (not latency critical)
 
@@ -472,8 +472,8 @@ bf16_lstm_rollout = _compile(bf16_lstm_rollout)
 def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Tensor, steps: int, prior: Tensor,
                   scale_in: Tensor, scale_out: Tensor, precision: str = "fp32") -> Tuple[Tensor, Tensor]:
     """fused_lstm_rollout over blocks of KERNEL_ROWS rows on the CPU (a block's gate buffers stay in the L2 cache),
-    or with precision "bf16" bf16_lstm_rollout (its cell and prior in C where cell_bf16.available) over blocks of
-    BF16_ROWS.
+    or with precision "bf16" bf16_lstm_rollout (its cell, head and prior in C where cell_bf16.available) over
+    blocks of BF16_ROWS.
 
     Args:
         kernel: kernel_weights' dict.
@@ -490,7 +490,7 @@ def fused_rollout(kernel: dict[str, Any], feature: Tensor, x0: Tensor, x_obs: Te
         rows = BF16_ROWS
         args = (kernel["bf16_w"], kernel["bf16_out"], kernel["bf16_skip"], kernel["bf16_b_head"], kernel["gain"],
                 steps)
-        c_cell = cell_bf16.available(kernel["bf16_w"][-1].shape[1] // 4)  # else the TorchScript cell and prior
+        c_cell = cell_bf16.available(kernel["bf16_w"][-1].shape[1] // 4)  # else the TorchScript cell, head and prior
         parts = [cell_bf16.c_bf16_lstm_rollout(x0[i:i + rows], x_obs[i:i + rows], feature[i:i + rows], *args,
                                                prior[i:i + rows] if prior.shape[0] else prior, scale_in,
                                                scale_out) if c_cell else
