@@ -30,6 +30,12 @@ spread within `shape_tolerance`, relative; unmatched tracks first, then the lost
 rate moves an object beyond the gate in one interval, and an object that left the view comes back elsewhere; the
 signature keeps a different object from inheriting the id.
 
+Fragments: a detection matched to an established track (YOUNG_HITS hits or more, with a signature) whose height span
+or larger x-y spread is under FRAGMENT times the track's is a part of its object (a noisy depth image's cluster
+that kept only one end of a long box, an object half hidden): it keeps the id, but the track holds its centroid,
+velocity and signature. Followed, such a part would drag the track off its object, and the whole object seen
+again on the next cloud would be beyond the gate and start a new id.
+
 Duplicates: a track seen fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment, and an
 unmatched track within DUPLICATE gates of a detection an older track took is lost (a sparse object's cluster that
 splits for one cloud starts a second track on one half, which would otherwise take the object every other cloud).
@@ -48,6 +54,10 @@ import numpy as np
 #: A track matched fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment.
 YOUNG_HITS = 15
 YOUNG_COST = 0.5
+#: A detection of an established track whose height span or larger x-y spread is under FRAGMENT times the track's
+#: is a part of the object: the track holds its state (module docstring). Under depth noise a whole object's
+#: components vary by up to a third between clouds.
+FRAGMENT = 0.5
 #: An unmatched track this many gates from a detection an older track took is a duplicate of that track.
 DUPLICATE = 0.5
 #: Retirements kept for a caller that has not taken them (Tracker.take_retired): the latest ones.
@@ -65,6 +75,12 @@ class Track:
 
     def predict(self, t: float) -> np.ndarray:
         return self.centroid + self.velocity * max(0.0, t - self.last_seen)
+
+    def fragment(self, signature: np.ndarray | None) -> bool:
+        """Whether a detection of this signature is only a part of the track's object (module docstring)."""
+        if signature is None or self.signature is None or self.hits < YOUNG_HITS:
+            return False
+        return bool(signature[0] < FRAGMENT * self.signature[0] or signature[2] < FRAGMENT * self.signature[2])
 
 
 def shape_signature(points: np.ndarray) -> np.ndarray:
@@ -232,6 +248,10 @@ class Tracker:
         for i in range(len(c)):
             if i in matched or i in again:
                 tr = pool[matched[i] if i in matched else again[i]]
+                if i in matched and tr.fragment(None if sig is None else sig[i]):  # seen, but not moved by it
+                    tr.last_seen = max(tr.last_seen, t)
+                    ids.append(tr.id)
+                    continue
                 if i in again:  # a jump, not a velocity: the constant-velocity prediction starts over
                     tr.centroid, tr.velocity = c[i], np.zeros(3)
                 self._update(tr, c[i], t)
