@@ -106,9 +106,10 @@ def test_an_object_whose_cloud_splits_for_one_frame_keeps_its_id():
 
 def test_a_fragment_of_an_object_keeps_the_id_without_dragging_the_track_off():
     """Under depth noise a long box's cluster kept only one end for a cloud, twice, each time farther off (seen in
-    bench_tracking's noisy clouds): the fragments get the box's id, but the track holds its centroid, velocity and
-    signature, so the whole box on the next cloud keeps its id (before, the track followed the fragments beyond
-    the gate, its signature drifted past the second chance's tolerance, and the box got a new id)."""
+    bench_tracking's noisy clouds), the second beyond the gate: both get the box's id, but the track holds its
+    centroid, velocity and signature, so the whole box on the next cloud keeps its id (before, the track followed
+    the fragments beyond the gate, its signature drifted past the second chance's tolerance, and the box got a new
+    id)."""
     tracker = Tracker()
     box, other = np.array([0.2, -0.25, 0.044]), np.array([-0.15, -0.09, 0.03])
     box_sig, other_sig = np.array([0.06, 0.016, 0.088]), np.array([0.047, 0.022, 0.035])
@@ -116,13 +117,18 @@ def test_a_fragment_of_an_object_keeps_the_id_without_dragging_the_track_off():
         assert tracker.update([box, other], k / 15, [box_sig, other_sig]) == ["object_1", "object_2"]
     end_sig = np.array([0.015, 0.016, 0.04])  # flat and short: one end of the box's top
     near = tracker.update([box + [-0.06, 0.0, 0.016], other], 20 / 15, [end_sig, other_sig])
-    assert near == ["object_1", "object_2"]  # within the gate: the box's id
+    assert near == ["object_1", "object_2"] and tracker.parts == [0]  # within the gate: the box's id, as a part
+    # beyond the gate, but within the box (its ends lie 1.7 spreads from its middle): still the box's
     far = tracker.update([box + [-0.11, 0.0, 0.016], other], 21 / 15, [end_sig, other_sig])
-    assert far[1] == "object_2"
+    assert far == ["object_1", "object_2"] and tracker.parts == [0]
     held = next(tr for tr in tracker.tracks if tr.id == "object_1")
     state = (held.centroid.copy(), held.velocity.copy(), held.signature.copy())
     assert tracker.update([box + [0.003, 0.0, 0.0], other], 22 / 15, [box_sig, other_sig]) == ["object_1", "object_2"]
+    assert tracker.parts == []
     assert np.allclose(state[0], box) and np.allclose(state[1], 0.0) and np.allclose(state[2], box_sig)
+    assert tracker.count == 2  # no id for the box's end
+    # something as small farther than the box reaches is not a part of it
+    assert tracker.update([box + [-0.3, 0.0, 0.016], other], 23 / 15, [end_sig, other_sig]) == ["object_3", "object_2"]
     # a track still young, or detections without signatures, are followed as before
     young = Tracker()
     young.update([box], 0.0, [box_sig])

@@ -342,6 +342,11 @@ class PerceptionNode(ManagedNode):
                            "several objects")
         else:
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
+            if self.tracker.parts:  # the id's feature and pose stay the whole object's
+                self.tracking_note = "; ".join(f"{labelled[i][0]}: only a part seen ({len(labelled[i][1].points)} "
+                                               f"points), its feature and pose hold" for i in self.tracker.parts)
+                self._note(self.tracking_note, "part of an object")
+                labelled = [pair for i, pair in enumerate(labelled) if i not in self.tracker.parts]
         self._take_retired()
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it

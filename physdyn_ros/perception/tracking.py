@@ -30,11 +30,15 @@ spread within `shape_tolerance`, relative; unmatched tracks first, then the lost
 rate moves an object beyond the gate in one interval, and an object that left the view comes back elsewhere; the
 signature keeps a different object from inheriting the id.
 
-Fragments: a detection matched to an established track (YOUNG_HITS hits or more, with a signature) whose height span
-or larger x-y spread is under FRAGMENT times the track's is a part of its object (a noisy depth image's cluster
-that kept only one end of a long box, an object half hidden): it keeps the id, but the track holds its centroid,
-velocity and signature. Followed, such a part would drag the track off its object, and the whole object seen
-again on the next cloud would be beyond the gate and start a new id.
+Fragments: a detection whose height span or larger x-y spread is under FRAGMENT times an established track's
+(YOUNG_HITS hits or more, with a signature) is a part of that track's object (a noisy depth image's cluster that
+kept only one end of a long box, an object half hidden) where it is matched to the track, or, left unmatched, where
+the track is unmatched too and the part lies within EXTENT times the track's larger x-y spread of its centroid
+(inside the object; beyond the gate for a long object). It gets the track's id, but the track holds its centroid,
+velocity and signature, and `parts` lists it (the caller's feature and pose of the object should not come from a
+part either). Followed, such a part would drag the track off its object, and the whole object seen again on the
+next cloud would be beyond the gate and start a new id; given a new id, a part that comes back every few clouds
+would keep a phantom track alive beside the object.
 
 Duplicates: a track seen fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment, and an
 unmatched track within DUPLICATE gates of a detection an older track took is lost (a sparse object's cluster that
@@ -58,6 +62,9 @@ YOUNG_COST = 0.5
 #: is a part of the object: the track holds its state (module docstring). Under depth noise a whole object's
 #: components vary by up to a third between clouds.
 FRAGMENT = 0.5
+#: ... and lies within EXTENT times the track's larger x-y spread (a standard deviation) of its centroid: a uniform
+#: rod's ends lie 1.7 of them from its middle.
+EXTENT = 2.0
 #: An unmatched track this many gates from a detection an older track took is a duplicate of that track.
 DUPLICATE = 0.5
 #: Retirements kept for a caller that has not taken them (Tracker.take_retired): the latest ones.
@@ -106,6 +113,7 @@ class Tracker:
         # (id, why) of the tracks ended since the caller last took them (the latest RETIRED_KEPT)
         self.retired: deque[tuple[str, str]] = deque(maxlen=RETIRED_KEPT)
         self._last_t: float | None = None
+        self.parts: list[int] = []  # the last update's detections that were parts of a tracked object
 
     def configure(self, prefix: str, gate: float, timeout: float, memory: float | None = None) -> None:
         """New settings (parameters changed at run time); a new prefix applies to new tracks only."""
@@ -206,6 +214,27 @@ class Tracker:
         rows, cols = linear_sum_assignment(np.where(ok, cost, 1e6))
         return {dets[r]: free[k] for r, k in zip(rows, cols) if ok[r, k]}
 
+    def _parts(self, c: np.ndarray, sig: np.ndarray, matched: dict[int, int], again: dict[int, int]) -> dict[int, int]:
+        """Unmatched detection index -> index of the unmatched live track whose object it is a part of (the
+        module docstring's fragments), nearest first."""
+        taken = set(matched.values()) | {j for j in again.values() if j < len(self.tracks)}
+        pairs = []
+        for i in range(len(c)):
+            if i in matched or i in again:
+                continue
+            for j, tr in enumerate(self.tracks):
+                if j in taken or not tr.fragment(sig[i]):
+                    continue
+                assert tr.signature is not None  # fragment() holds it
+                d = float(np.linalg.norm(c[i, :2] - tr.centroid[:2]))
+                if d <= EXTENT * tr.signature[2]:
+                    pairs.append((d, i, j))
+        out: dict[int, int] = {}
+        for _, i, j in sorted(pairs):
+            if i not in out and j not in out.values():
+                out[i] = j
+        return out
+
     def _drop_duplicates(self, c: np.ndarray, t: float, matched: dict[int, int]) -> None:
         """An unmatched track within DUPLICATE gates of a detection that an older track took is a second track on
         one object (started on half of a split cluster): it is lost (its id may still come back by shape; retired
@@ -232,26 +261,33 @@ class Tracker:
             matched[i] = index[matched[i]]
 
     def update(self, centroids, t: float, signatures=None) -> list[str]:
-        """Ids of the detections (centroids (K, 3), m) seen at time t (s), in their order. signatures: (K, 3)
-        shape_signature of each detection (optional: enables the second chance)."""
+        """Ids of the detections (centroids (K, 3), m) seen at time t (s), in their order; `parts` then lists the
+        indices of those that are only parts of their objects. signatures: (K, 3) shape_signature of each
+        detection (optional: enables the second chance and the parts)."""
         c = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
         sig = None if signatures is None else np.asarray(signatures, dtype=np.float64).reshape(-1, 3)
         self._age(t)
         matched = self._match(c, t)
         self._drop_duplicates(c, t, matched)
         again = self._rematch(c, sig, matched) if sig is not None else {}
+        parts = self._parts(c, sig, matched, again) if sig is not None else {}
         pool = self.tracks + self.lost
         back = [pool[j] for j in again.values() if j >= len(self.tracks)]
         self.lost = [tr for tr in self.lost if all(tr is not b for b in back)]
         self.tracks += back
         ids = []
+        self.parts = []
         for i in range(len(c)):
+            part = self.tracks[parts[i]] if i in parts else None
+            if part is None and i in matched and sig is not None and pool[matched[i]].fragment(sig[i]):
+                part = pool[matched[i]]
+            if part is not None:  # seen, but not moved by it
+                part.last_seen = max(part.last_seen, t)
+                self.parts.append(i)
+                ids.append(part.id)
+                continue
             if i in matched or i in again:
                 tr = pool[matched[i] if i in matched else again[i]]
-                if i in matched and tr.fragment(None if sig is None else sig[i]):  # seen, but not moved by it
-                    tr.last_seen = max(tr.last_seen, t)
-                    ids.append(tr.id)
-                    continue
                 if i in again:  # a jump, not a velocity: the constant-velocity prediction starts over
                     tr.centroid, tr.velocity = c[i], np.zeros(3)
                 self._update(tr, c[i], t)
