@@ -43,13 +43,14 @@ int physdyn_cell_bf16_simd(void) {
 }
 
 #ifdef PHYSDYN_CELL_BF16
-// sigmoid(x) = 1 / (1 + exp(-x)). exp(-x) with x clamped to [-88, 88]: -x = n ln2 + r with |r| <= ln2 / 2 (ln2
+// sigmoid(x) = 1 / (1 + exp(-x)). exp(-x) with x clamped to [-88, 88] (NaN passes): -x = n ln2 + r with |r| <= ln2 / 2 (ln2
 // in two parts), exp(r) = 1 + r + r^2 q(r) with a cubic q fitted for the least maximal relative error (2e-7, 3
 // ulp of float32: far below the bf16 rounding of the gates it is applied to), times 2^n by scalef. Then 1 / d by
 // the 14-bit reciprocal and one Newton step (2^-28 relative), not a division, whose throughput would bound the
 // whole pass. 17 vector operations.
 static inline __m512 sigmoid512(__m512 x) {
-  x = _mm512_min_ps(_mm512_max_ps(x, _mm512_set1_ps(-88.0f)), _mm512_set1_ps(88.0f));
+  // max and min return their second operand when either is NaN: a NaN gate stays NaN, as in torch
+  x = _mm512_min_ps(_mm512_set1_ps(88.0f), _mm512_max_ps(_mm512_set1_ps(-88.0f), x));
   const __m512 n = _mm512_roundscale_ps(_mm512_mul_ps(x, _mm512_set1_ps(-1.44269504088896341f)),
                                         _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
   __m512 r = _mm512_fnmsub_ps(n, _mm512_set1_ps(0.693359375f), x);  // -x - n ln2_hi
@@ -143,7 +144,8 @@ static inline void prior_row(const float *xr, const float *pr, const float *scal
   for (int j = 0; j < 12; ++j) yr[j] += out[j] / scale_out[j];
 }
 
-// float32 -> bf16, rounded to nearest even (c10's round_to_nearest_even: NaN stays a quiet NaN)
+// float32 -> bf16, rounded to nearest even as torch rounds (a NaN stays a quiet NaN; torch's own bits for it vary
+// with its code path)
 static inline uint16_t bf16_rne(float f) {
   uint32_t u;
   memcpy(&u, &f, sizeof u);
@@ -178,6 +180,9 @@ typedef struct {
   uint16_t *zx;  // (rows, 6, row stride z_stride) bf16: the next input in the row buffer
   int64_t z_stride;
 } physdyn_tail;
+
+// sizeof(physdyn_tail): learn/cell_bf16.py checks its mirror of the struct against it.
+int64_t physdyn_tail_size(void) { return (int64_t)sizeof(physdyn_tail); }
 
 #ifdef PHYSDYN_CELL_BF16
 static inline void tail_row(const physdyn_tail *t, const uint16_t *hr, int64_t hidden, int64_t r) {

@@ -235,6 +235,7 @@ def test_c_cell_step_is_torchs_up_to_float32_rounding():
     rows, hidden = 37, 48
     g = (torch.randn(rows, 4 * hidden, generator=gen) * 4.0).to(torch.bfloat16)
     g[0, :4] = torch.tensor([90.0, -90.0, 0.0, 1e-3])  # saturated gates
+    g[1, 0], g[1, hidden + 1] = float("nan"), float("inf")  # a NaN stays NaN, as in torch
     c0 = torch.randn(rows, hidden, generator=gen) * 3.0
     ref_c, ref_h = _torch_cell(g, c0)
     c = c0.clone()
@@ -242,8 +243,9 @@ def test_c_cell_step_is_torchs_up_to_float32_rounding():
     h = z[:, 10:10 + hidden]
     (cell, _), _ = cell_bf16._cell()
     assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, hidden) == 0
-    assert torch.allclose(c, ref_c, rtol=1e-6, atol=1e-6), (c - ref_c).abs().max()
-    step = (h.float() - ref_h.float()).abs() / ref_h.float().abs().clamp_min(2.0 ** -120)
+    assert ref_c[1, 0].isnan() and torch.equal(c.isnan(), ref_c.isnan()) and torch.equal(h.isnan(), ref_h.isnan())
+    assert torch.allclose(c, ref_c, rtol=1e-6, atol=1e-6, equal_nan=True), (c - ref_c).abs().nan_to_num().max()
+    step = ((h.float() - ref_h.float()).abs() / ref_h.float().abs().clamp_min(2.0 ** -120)).nan_to_num()
     assert step.max() <= 2.0 ** -7 and (h != ref_h).float().mean() < 0.01
     assert torch.all(z[:, :10] == 7.0) and torch.all(z[:, 10 + hidden:] == 7.0)  # nothing outside h written
     assert cell(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), h.data_ptr(), z.stride(0), rows, 40) == -1
@@ -365,6 +367,28 @@ def test_c_step_tail_is_the_torch_step(observed, with_prior):
         assert not moved[:4].any() and moved[4:].all()
     assert last(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), case["h"].data_ptr(), z.stride(0), rows, 40,
                 case["tail"]) == -1
+
+
+@needs_c_cell
+def test_c_step_tail_rounds_the_next_input_to_bf16_as_torch_does():
+    """The next input's bf16 copy in the row buffer (what the next products read): round to nearest even on ties,
+    overflow to inf, inf and NaN kept, as torch's conversion."""
+    gen = torch.Generator().manual_seed(12)
+    rows, hidden = 4, 16
+    case = _tail_case(rows, hidden, True, False, gen)
+    special = torch.tensor([1 + 2 ** -8, 1 + 3 * 2 ** -8, -(1 + 2 ** -8), 3.4e38, float("inf"), float("nan"),
+                            -float("inf"), 2 ** -130, -0.0, 1e-3, 65504.0, -3.0e38], dtype=torch.float32)
+    obs = case["keep"][3]
+    obs[:, 1] = special[:rows * 6].reshape(rows, 6) if special.numel() >= rows * 6 else torch.cat(
+        [special, torch.randn(rows * 6 - special.numel(), generator=gen)]).reshape(rows, 6)
+    (_, last), _ = cell_bf16._cell()
+    g, c, z = case["g"], case["c"], case["z"]
+    assert last(g.data_ptr(), g.stride(0), c.data_ptr(), c.stride(0), case["h"].data_ptr(), z.stride(0), rows, hidden,
+                case["tail"]) == 0
+    want = obs[:, 1].to(torch.bfloat16)
+    got = z[:, :6]
+    assert torch.equal(got.isnan(), want.isnan()) and torch.equal(got[~want.isnan()], want[~want.isnan()])
+    assert got[0, 0] == 1.0 and got[0, 3] == float("inf")  # a tie to the even neighbour; overflow
 
 
 @needs_c_cell

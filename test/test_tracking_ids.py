@@ -134,3 +134,33 @@ def test_a_fragment_of_an_object_keeps_the_id_without_dragging_the_track_off():
     young.update([box], 0.0, [box_sig])
     young.update([box + [-0.06, 0.0, 0.0]], 1 / 15, [end_sig])
     assert np.allclose(young.tracks[0].centroid, box + [-0.06, 0.0, 0.0])
+
+
+def test_parts_neither_keep_a_track_alive_nor_take_a_toppled_object():
+    """A part holds its track only while the track would live anyway: seen only in parts for longer than the
+    timeout, the object is lost and the part is an object of its own. A tall box that topples is no part of
+    itself (its height falls, but its x-y spread grows): the track follows it. Seen as a part, the track's
+    constant-velocity prediction still runs from the last whole view."""
+    box, box_sig = np.array([0.3, 0.0, 0.10]), np.array([0.20, 0.017, 0.017])  # 6 x 6 x 20 cm, standing
+    tracker = Tracker(timeout=1.0)
+    for k in range(20):
+        tracker.update([box], k / 15, [box_sig])
+    lying, lying_sig = box + [0.07, 0.0, -0.07], np.array([0.06, 0.017, 0.058])
+    assert tracker.update([lying], 20 / 15, [lying_sig]) == ["object_1"] and tracker.parts == []
+    assert np.allclose(tracker.tracks[0].centroid, lying)
+
+    tracker = Tracker(timeout=1.0)
+    for k in range(20):
+        tracker.update([box], k / 15, [box_sig])
+    top = np.array([0.04, 0.017, 0.017])  # only its top
+    ids = [tracker.update([box + [0.0, 0.0, 0.08]], k / 15, [top])[0] for k in range(20, 40)]
+    assert ids[:15] == ["object_1"] * 15 and ids[-1] == "object_2"  # 1 s after the last whole view: lost
+    assert [i for i, _ in tracker.take_losses()] == ["object_1"]
+
+    moving = Tracker()
+    for k in range(20):
+        moving.update([box + [0.4 * k / 15, 0.0, 0.0]], k / 15, [box_sig])
+    for k in range(20, 23):
+        assert moving.update([box + [0.4 * k / 15, 0.0, 0.08]], k / 15, [top]) == ["object_1"]
+    assert moving.update([box + [0.4 * 23 / 15, 0.0, 0.0]], 23 / 15, [box_sig]) == ["object_1"]
+    assert np.allclose(moving.tracks[0].velocity, [0.4, 0.0, 0.0], atol=1e-9)

@@ -62,8 +62,12 @@ def _cell() -> Tuple[Optional[Tuple[Callable[..., int], Callable[..., int]]], st
         return None, why
     try:
         simd, fn, last = lib.physdyn_cell_bf16_simd, lib.physdyn_lstm_cell_bf16, lib.physdyn_cell_tail_bf16
+        size = lib.physdyn_tail_size
     except AttributeError as exc:  # a library built before the cell (or its step tail) existed
         return None, str(exc)
+    size.restype = ctypes.c_int64
+    if size() != ctypes.sizeof(Tail):
+        return None, f"the library's step tail struct has {size()} bytes, its Python mirror {ctypes.sizeof(Tail)}"
     if not simd():
         return None, "the C kernels' library was built without AVX-512 BF16 (a compiler without -mavx512bf16)"
     if not FLAGS <= cpu_flags():
@@ -151,10 +155,12 @@ def c_bf16_lstm_rollout(x0: Tensor, x_obs: Tensor, feature: Tensor, w: List[Tens
                 b_head=b16.data_ptr(), dt=DT, obs_stride=x_obs.stride(0), gain=gain.data_ptr(), x=x.data_ptr(),
                 x_stride=x.stride(0), y_stride=ys.stride(0), xs_stride=xs.stride(0), zx=z.data_ptr(),
                 z_stride=z.stride(0))
+    if x.dtype != torch.float32:  # the tail writes x, ys and xs as float32
+        raise ValueError(f"the C step tail needs float32 inputs, got {x.dtype}")
     if has_prior:  # float32, contiguous rows: what the C prior reads
-        if x.dtype != torch.float32 or prior.shape != (batch, 3) or scale_in.numel() < 6 or scale_out.numel() < 12:
-            raise ValueError(f"the C prior needs float32 inputs and a ({batch}, 3) prior, got {x.dtype} and "
-                             f"{tuple(prior.shape)}")
+        if prior.shape != (batch, 3) or scale_in.numel() < 6 or scale_out.numel() < 12:
+            raise ValueError(f"the C prior needs a ({batch}, 3) prior, 6 input and 12 output scales, got "
+                             f"{tuple(prior.shape)}, {scale_in.numel()} and {scale_out.numel()}")
         prior = prior.to(torch.float32).contiguous()
         scale_in, scale_out = (s.to(torch.float32).contiguous() for s in (scale_in, scale_out))
         tail.prior, tail.p_stride = prior.data_ptr(), prior.stride(0)

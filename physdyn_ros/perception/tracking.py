@@ -30,15 +30,18 @@ spread within `shape_tolerance`, relative; unmatched tracks first, then the lost
 rate moves an object beyond the gate in one interval, and an object that left the view comes back elsewhere; the
 signature keeps a different object from inheriting the id.
 
-Fragments: a detection whose height span or larger x-y spread is under FRAGMENT times an established track's
-(YOUNG_HITS hits or more, with a signature) is a part of that track's object (a noisy depth image's cluster that
-kept only one end of a long box, an object half hidden) where it is matched to the track, or, left unmatched, where
-the track is unmatched too and the part lies within EXTENT times the track's larger x-y spread of its centroid
-(inside the object; beyond the gate for a long object). It gets the track's id, but the track holds its centroid,
-velocity and signature, and `parts` lists it (the caller's feature and pose of the object should not come from a
-part either). Followed, such a part would drag the track off its object, and the whole object seen again on the
-next cloud would be beyond the gate and start a new id; given a new id, a part that comes back every few clouds
-would keep a phantom track alive beside the object.
+Fragments: a detection no larger than an established track's object (YOUNG_HITS hits or more, with a signature;
+each signature component at most 1 + `shape_tolerance` times the track's) and under FRAGMENT times it in height
+span or larger x-y spread is a part of that object (a noisy depth image's cluster that kept only one end of a long
+box, an object half hidden) where it is matched to the track, or, left unmatched, where the track is unmatched too
+and the part lies within EXTENT times the track's larger x-y spread of its centroid (inside the object; beyond the
+gate for a long object; one part per track and cloud). It gets the track's id, but the track holds its centroid,
+velocity, signature and last-seen time, and `parts` lists it (the caller's feature and pose of the object should
+not come from a part either). Followed, such a part would drag the track off its object, and the whole object
+seen again on the next cloud would be beyond the gate and start a new id; given a new id, a part that comes back
+every few clouds would keep a phantom track alive beside the object. Parts do not keep a track alive: seen only
+in parts for longer than `timeout`, the track is lost (and a part is then an object of its own). An object that
+topples is not a part of itself: its x-y spread grows.
 
 Duplicates: a track seen fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment, and an
 unmatched track within DUPLICATE gates of a detection an older track took is lost (a sparse object's cluster that
@@ -83,9 +86,12 @@ class Track:
     def predict(self, t: float) -> np.ndarray:
         return self.centroid + self.velocity * max(0.0, t - self.last_seen)
 
-    def fragment(self, signature: np.ndarray | None) -> bool:
-        """Whether a detection of this signature is only a part of the track's object (module docstring)."""
+    def fragment(self, signature: np.ndarray | None, tolerance: float) -> bool:
+        """Whether a detection of this signature is only a part of the track's object (module docstring; tolerance:
+        the tracker's shape_tolerance)."""
         if signature is None or self.signature is None or self.hits < YOUNG_HITS:
+            return False
+        if np.any(signature > (1.0 + tolerance) * self.signature):  # larger in some way: not a part of it
             return False
         return bool(signature[0] < FRAGMENT * self.signature[0] or signature[2] < FRAGMENT * self.signature[2])
 
@@ -223,7 +229,7 @@ class Tracker:
             if i in matched or i in again:
                 continue
             for j, tr in enumerate(self.tracks):
-                if j in taken or not tr.fragment(sig[i]):
+                if j in taken or not tr.fragment(sig[i], self.shape_tolerance):
                     continue
                 assert tr.signature is not None  # fragment() holds it
                 d = float(np.linalg.norm(c[i, :2] - tr.centroid[:2]))
@@ -279,10 +285,10 @@ class Tracker:
         self.parts = []
         for i in range(len(c)):
             part = self.tracks[parts[i]] if i in parts else None
-            if part is None and i in matched and sig is not None and pool[matched[i]].fragment(sig[i]):
+            if (part is None and i in matched and sig is not None
+                    and pool[matched[i]].fragment(sig[i], self.shape_tolerance)):
                 part = pool[matched[i]]
-            if part is not None:  # seen, but not moved by it
-                part.last_seen = max(part.last_seen, t)
+            if part is not None:  # seen, but neither moved nor kept alive by it
                 self.parts.append(i)
                 ids.append(part.id)
                 continue
