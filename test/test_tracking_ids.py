@@ -137,10 +137,11 @@ def test_a_fragment_of_an_object_keeps_the_id_without_dragging_the_track_off():
 
 
 def test_parts_neither_keep_a_track_alive_nor_take_a_toppled_object():
-    """A part holds its track only while the track would live anyway: seen only in parts for longer than the
-    timeout, the object is lost and the part is an object of its own. A tall box that topples is no part of
-    itself (its height falls, but its x-y spread grows): the track follows it. Seen as a part, the track's
-    constant-velocity prediction still runs from the last whole view."""
+    """A part stands in for its object for at most PART_HOLD s after the object's last whole view: a view that
+    stays smaller is the object's new view (a wedge turned to its thin side, seen in push_to_goal) and is followed,
+    with its own signature from then on. A tall box that topples is no part of itself (its height falls, but its
+    x-y spread grows): the track follows it. Seen as a part, the track's constant-velocity prediction still runs
+    from the last whole view."""
     box, box_sig = np.array([0.3, 0.0, 0.10]), np.array([0.20, 0.017, 0.017])  # 6 x 6 x 20 cm, standing
     tracker = Tracker(timeout=1.0)
     for k in range(20):
@@ -152,10 +153,13 @@ def test_parts_neither_keep_a_track_alive_nor_take_a_toppled_object():
     tracker = Tracker(timeout=1.0)
     for k in range(20):
         tracker.update([box], k / 15, [box_sig])
-    top = np.array([0.04, 0.017, 0.017])  # only its top
-    ids = [tracker.update([box + [0.0, 0.0, 0.08]], k / 15, [top])[0] for k in range(20, 40)]
-    assert ids[:15] == ["object_1"] * 15 and ids[-1] == "object_2"  # 1 s after the last whole view: lost
-    assert [i for i, _ in tracker.take_losses()] == ["object_1"]
+    top = np.array([0.04, 0.017, 0.017])  # from now on only its top is seen
+    held = []
+    for k in range(20, 40):
+        assert tracker.update([box + [0.0, 0.0, 0.08]], k / 15, [top]) == ["object_1"]
+        held.append(bool(tracker.parts))
+    assert held[:4] == [True] * 4 and not any(held[5:])  # 0.3 s, then the new view is the object's
+    assert np.allclose(tracker.tracks[0].signature, top) and tracker.count == 1
 
     moving = Tracker()
     for k in range(20):
@@ -164,3 +168,21 @@ def test_parts_neither_keep_a_track_alive_nor_take_a_toppled_object():
         assert moving.update([box + [0.4 * k / 15, 0.0, 0.08]], k / 15, [top]) == ["object_1"]
     assert moving.update([box + [0.4 * 23 / 15, 0.0, 0.0]], 23 / 15, [box_sig]) == ["object_1"]
     assert np.allclose(moving.tracks[0].velocity, [0.4, 0.0, 0.0], atol=1e-9)
+
+
+def test_single_object_mode_holds_its_track_on_a_part():
+    """follow() as update(): a part of the followed object within the gate, or beyond it but inside the object, is
+    returned and listed in `parts` while the track holds; a whole detection within the gate wins over a nearer
+    part; the whole object on the next cloud continues the track."""
+    box, box_sig = np.array([0.2, -0.25, 0.044]), np.array([0.06, 0.016, 0.088])
+    end_sig = np.array([0.015, 0.016, 0.04])
+    tracker = Tracker()
+    for k in range(20):
+        assert tracker.follow([box], k / 15, "seen", [box_sig]) == 0
+    assert tracker.follow([box + [-0.11, 0.0, 0.016]], 20 / 15, "seen", [end_sig]) == 0 and tracker.parts == [0]
+    assert np.allclose(tracker.tracks[0].centroid, box)
+    other = box + [0.06, 0.0, 0.0]  # a whole detection within the gate, farther than the part
+    assert tracker.follow([box + [-0.01, 0.0, 0.016], other], 21 / 15, "seen", [end_sig, box_sig]) == 1
+    assert tracker.parts == []
+    assert tracker.follow([box], 22 / 15, "seen", [box_sig]) == 0 and tracker.parts == []
+    assert [tr.id for tr in tracker.tracks] == ["seen"] and not tracker.take_retired()

@@ -323,3 +323,29 @@ def test_a_part_of_a_tracked_object_publishes_nothing_under_its_id(rclpy_init, t
         assert node.tracker.count == 2  # no id was handed out for the part
     finally:
         node.destroy_node()
+
+
+def test_single_object_mode_publishes_nothing_for_a_part_and_says_why(rclpy_init, tiny_model):
+    """single_object (the suite's default): the sim camera's box alone, then a cloud with only its top: no feature
+    and no tracked state for that cloud, the cloud counted as refused with the reason (never a crash), and the box
+    back under its id on the next whole cloud."""
+    node = PerceptionNode(parameter_overrides=[
+        Parameter("model_path", value=str(tiny_model)), Parameter("voxel_size", value=0.005)])
+    points, _ = box_and_speaker_view()
+    points = points[(points[:, 1] < 0.0) | (points[:, 2] <= 0.005)]  # the box and the table only
+    box = points[:, 2] > 0.005
+    top = points[~box | (points[:, 2] > points[box, 2].max() - 0.006)]
+    try:
+        for k in range(18):
+            node.on_cloud(xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS)))
+        assert node.published == 18 and node.refused == 0, node.last_error
+        node.on_cloud(xyz_to_cloud(top, "world", ns_to_time(10**9 + 18 * DT_NS)))
+        assert node.published == 18 and not node.states and node.refused == 1
+        assert node.last_error.startswith("only parts of tracked objects seen")
+        assert "only a part seen" in node.last_error
+        for k in range(19, 22):  # a random sample of a cloud may split the box too
+            node.on_cloud(xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS)))
+        assert node.published > 18 and {m.object_id for m in node.states} <= {node.get_parameter("object_id").value}
+        assert not node.tracker.take_retired()
+    finally:
+        node.destroy_node()

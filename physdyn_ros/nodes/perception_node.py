@@ -336,18 +336,22 @@ class PerceptionNode(ManagedNode):
         if p("single_object").value:
             chosen = self.tracker.follow(centroids, t, p("object_id").value, signatures)
             labelled = [(p("object_id").value, scene.objects[chosen])]
+            parts = labelled if self.tracker.parts else []
             if len(scene.objects) > 1:
                 self._note(f"{len(scene.objects)} objects in the cloud; single_object publishes only the one "
                            f"tracked as '{labelled[0][0]}' (set single_object false for one feature per object)",
                            "several objects")
         else:
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
-            if self.tracker.parts:  # the id's feature and pose stay the whole object's
-                self.tracking_note = "; ".join(f"{labelled[i][0]}: only a part seen ({len(labelled[i][1].points)} "
-                                               f"points), its feature and pose hold" for i in self.tracker.parts)
-                self._note(self.tracking_note, "part of an object")
-                labelled = [pair for i, pair in enumerate(labelled) if i not in self.tracker.parts]
+            parts = [labelled[i] for i in self.tracker.parts]
+        if parts:  # the id's feature and pose stay the whole object's
+            self.tracking_note = "; ".join(f"{object_id}: only a part seen ({len(obj.points)} points), its feature "
+                                           f"and pose hold" for object_id, obj in parts)
+            self._note(self.tracking_note, "part of an object")
+            labelled = [pair for pair in labelled if all(pair[1] is not obj for _, obj in parts)]
         self._take_retired()
+        if not labelled:
+            return [], self.markers(header, []), f"only parts of tracked objects seen ({self.tracking_note})"
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
         plane = scene.plane

@@ -39,9 +39,10 @@ gate for a long object; one part per track and cloud). It gets the track's id, b
 velocity, signature and last-seen time, and `parts` lists it (the caller's feature and pose of the object should
 not come from a part either). Followed, such a part would drag the track off its object, and the whole object
 seen again on the next cloud would be beyond the gate and start a new id; given a new id, a part that comes back
-every few clouds would keep a phantom track alive beside the object. Parts do not keep a track alive: seen only
-in parts for longer than `timeout`, the track is lost (and a part is then an object of its own). An object that
-topples is not a part of itself: its x-y spread grows.
+every few clouds would keep a phantom track alive beside the object. A part stands in for its object for at most
+PART_HOLD s after the object's last whole view: a view that stays smaller is the object's new view (a wedge turned
+to show its thin side), followed from then on with its own signature. An object that topples is no part of itself:
+its x-y spread grows.
 
 Duplicates: a track seen fewer than YOUNG_HITS times costs YOUNG_COST gates more in the assignment, and an
 unmatched track within DUPLICATE gates of a detection an older track took is lost (a sparse object's cluster that
@@ -65,6 +66,9 @@ YOUNG_COST = 0.5
 #: is a part of the object: the track holds its state (module docstring). Under depth noise a whole object's
 #: components vary by up to a third between clouds.
 FRAGMENT = 0.5
+#: ... for at most PART_HOLD s since its object's last whole view: a fragment lasts a cloud or two, while a view
+#: that stays smaller is the object's new view (it turned) and is followed.
+PART_HOLD = 0.3
 #: ... and lies within EXTENT times the track's larger x-y spread (a standard deviation) of its centroid: a uniform
 #: rod's ends lie 1.7 of them from its middle.
 EXTENT = 2.0
@@ -86,14 +90,26 @@ class Track:
     def predict(self, t: float) -> np.ndarray:
         return self.centroid + self.velocity * max(0.0, t - self.last_seen)
 
-    def fragment(self, signature: np.ndarray | None, tolerance: float) -> bool:
-        """Whether a detection of this signature is only a part of the track's object (module docstring; tolerance:
-        the tracker's shape_tolerance)."""
+    def smaller(self, signature: np.ndarray | None, tolerance: float) -> bool:
+        """Whether a detection of this signature is small enough to be only a part of the track's object (module
+        docstring; tolerance: the tracker's shape_tolerance)."""
         if signature is None or self.signature is None or self.hits < YOUNG_HITS:
             return False
         if np.any(signature > (1.0 + tolerance) * self.signature):  # larger in some way: not a part of it
             return False
         return bool(signature[0] < FRAGMENT * self.signature[0] or signature[2] < FRAGMENT * self.signature[2])
+
+    def fragment(self, signature: np.ndarray | None, tolerance: float, t: float) -> bool:
+        """smaller(), within PART_HOLD s of the last whole view at time t: a part that stands in for its object."""
+        return t - self.last_seen <= PART_HOLD and self.smaller(signature, tolerance)
+
+    def take_signature(self, signature: np.ndarray, tolerance: float) -> None:
+        """The running signature after a followed detection; a view that stayed smaller past PART_HOLD is the
+        object's new view (it turned), and its signature starts over."""
+        if self.signature is None or self.smaller(signature, tolerance):
+            self.signature = signature
+        else:
+            self.signature = 0.8 * self.signature + 0.2 * signature
 
 
 def shape_signature(points: np.ndarray) -> np.ndarray:
@@ -220,7 +236,8 @@ class Tracker:
         rows, cols = linear_sum_assignment(np.where(ok, cost, 1e6))
         return {dets[r]: free[k] for r, k in zip(rows, cols) if ok[r, k]}
 
-    def _parts(self, c: np.ndarray, sig: np.ndarray, matched: dict[int, int], again: dict[int, int]) -> dict[int, int]:
+    def _parts(self, c: np.ndarray, sig: np.ndarray, matched: dict[int, int], again: dict[int, int],
+               t: float) -> dict[int, int]:
         """Unmatched detection index -> index of the unmatched live track whose object it is a part of (the
         module docstring's fragments), nearest first."""
         taken = set(matched.values()) | {j for j in again.values() if j < len(self.tracks)}
@@ -229,7 +246,7 @@ class Tracker:
             if i in matched or i in again:
                 continue
             for j, tr in enumerate(self.tracks):
-                if j in taken or not tr.fragment(sig[i], self.shape_tolerance):
+                if j in taken or not tr.fragment(sig[i], self.shape_tolerance, t):
                     continue
                 assert tr.signature is not None  # fragment() holds it
                 d = float(np.linalg.norm(c[i, :2] - tr.centroid[:2]))
@@ -276,7 +293,7 @@ class Tracker:
         matched = self._match(c, t)
         self._drop_duplicates(c, t, matched)
         again = self._rematch(c, sig, matched) if sig is not None else {}
-        parts = self._parts(c, sig, matched, again) if sig is not None else {}
+        parts = self._parts(c, sig, matched, again, t) if sig is not None else {}
         pool = self.tracks + self.lost
         back = [pool[j] for j in again.values() if j >= len(self.tracks)]
         self.lost = [tr for tr in self.lost if all(tr is not b for b in back)]
@@ -286,7 +303,7 @@ class Tracker:
         for i in range(len(c)):
             part = self.tracks[parts[i]] if i in parts else None
             if (part is None and i in matched and sig is not None
-                    and pool[matched[i]].fragment(sig[i], self.shape_tolerance)):
+                    and pool[matched[i]].fragment(sig[i], self.shape_tolerance, t)):
                 part = pool[matched[i]]
             if part is not None:  # seen, but neither moved nor kept alive by it
                 self.parts.append(i)
@@ -300,18 +317,20 @@ class Tracker:
             else:
                 tr = self._new(c[i], t)
             if sig is not None:
-                tr.signature = sig[i] if tr.signature is None else 0.8 * tr.signature + 0.2 * sig[i]
+                tr.take_signature(sig[i], self.shape_tolerance)
             ids.append(tr.id)
         return ids
 
     def follow(self, centroids, t: float, track_id: str, signatures=None) -> int | None:
-        """Single-object mode: the index of the detection that continues the one track `track_id` (the detection
-        nearest its predicted position, within the gate; with `signatures`, else the second chance of the module
-        docstring: a push that moved the object beyond the gate between two clouds), else of the first detection
-        (the largest, as the scene lists them) which restarts the track; None without detections."""
+        """Single-object mode: the index of the detection that continues the one track `track_id` (the whole
+        detection nearest its predicted position, within the gate; else, with `signatures`, a part of its object
+        (module docstring: `parts` then lists it, and the track holds), or the second chance: a push that moved
+        the object beyond the gate between two clouds), else of the first detection (the largest, as the scene
+        lists them) which restarts the track; None without detections."""
         c = np.asarray(centroids, dtype=np.float64).reshape(-1, 3)
         sig = None if signatures is None else np.asarray(signatures, dtype=np.float64).reshape(-1, 3)
         self._age(t)
+        self.parts = []
         self.retired += [(tr.id, f"another object is followed as '{track_id}'") for tr in self.tracks
                          if tr.id != track_id]
         self.tracks = [tr for tr in self.tracks if tr.id == track_id]
@@ -320,8 +339,19 @@ class Tracker:
         if self.tracks:
             tr = self.tracks[0]
             dist = np.minimum(np.linalg.norm(c - tr.predict(t), axis=1), np.linalg.norm(c - tr.centroid, axis=1))
-            best: int | None = int(np.argmin(dist))
-            if dist[best] > self.gate:
+            part = (np.array([tr.fragment(s, self.shape_tolerance, t) for s in sig]) if sig is not None
+                    else np.zeros(len(c), dtype=bool))
+            whole = np.flatnonzero(~part & (dist <= self.gate))
+            best: int | None = int(whole[np.argmin(dist[whole])]) if len(whole) else None
+            if best is None and part.any():
+                assert tr.signature is not None  # fragment() holds it
+                inside = part & ((dist <= self.gate)
+                                 | (np.linalg.norm(c[:, :2] - tr.centroid[:2], axis=1) <= EXTENT * tr.signature[2]))
+                if inside.any():  # seen, but neither moved nor kept alive by it
+                    best = int(np.flatnonzero(inside)[np.argmin(dist[inside])])
+                    self.parts = [best]
+                    return best
+            if best is None:
                 jump = [i for i, j in (self._rematch(c, sig, {}) if sig is not None else {}).items() if j == 0]
                 best = jump[0] if jump else None
                 if best is not None:  # a jump, not a velocity: the constant-velocity prediction starts over
@@ -329,7 +359,7 @@ class Tracker:
             if best is not None:
                 self._update(tr, c[best], t)
                 if sig is not None:
-                    tr.signature = sig[best] if tr.signature is None else 0.8 * tr.signature + 0.2 * sig[best]
+                    tr.take_signature(sig[best], self.shape_tolerance)
                 return best
         if self.tracks:
             self.retired.append((track_id, "lost; the id restarts on another detection (single_object)"))
