@@ -327,8 +327,9 @@ def test_a_part_of_a_tracked_object_publishes_nothing_under_its_id(rclpy_init, t
 
 def test_single_object_mode_publishes_nothing_for_a_part_and_says_why(rclpy_init, tiny_model):
     """single_object (the suite's default): the sim camera's box alone, then a cloud with only its top: no feature
-    and no tracked state for that cloud, the cloud counted as refused with the reason (never a crash), and the box
-    back under its id on the next whole cloud."""
+    and no tracked state for that cloud, the reason in the tracking note but no refusal (nothing is wrong with the
+    cloud, and a refusal would hold /diagnostics at WARN: about 3 % of the camera's clouds split an object), never a
+    crash, and the box back under its id on the next whole cloud."""
     node = PerceptionNode(parameter_overrides=[
         Parameter("model_path", value=str(tiny_model)), Parameter("voxel_size", value=0.005)])
     points, _ = box_and_speaker_view()
@@ -340,9 +341,8 @@ def test_single_object_mode_publishes_nothing_for_a_part_and_says_why(rclpy_init
             node.on_cloud(xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS)))
         assert node.published == 18 and node.refused == 0, node.last_error
         node.on_cloud(xyz_to_cloud(top, "world", ns_to_time(10**9 + 18 * DT_NS)))
-        assert node.published == 18 and not node.states and node.refused == 1
-        assert node.last_error.startswith("only parts of tracked objects seen")
-        assert "only a part seen" in node.last_error
+        assert node.published == 18 and not node.states and node.refused == 0
+        assert "only a part seen" in node._diagnose()[2]["last_tracking_note"]
         for k in range(19, 22):  # a random sample of a cloud may split the box too
             node.on_cloud(xyz_to_cloud(points, "world", ns_to_time(10**9 + k * DT_NS)))
         assert node.published > 18 and {m.object_id for m in node.states} <= {node.get_parameter("object_id").value}

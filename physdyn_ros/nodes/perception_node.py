@@ -308,7 +308,8 @@ class PerceptionNode(ManagedNode):
 
     # -------------------------------------------------------------------------------------------------- work
     def process(self, msg: PointCloud2) -> tuple[list[ShapeFeature], MarkerArray, str]:
-        """Cloud -> (features, markers, reason); reason says why there is no feature (then features is empty).
+        """Cloud -> (features, markers, reason); reason says why there is no feature (then features is empty; an
+        empty reason with no feature: only parts of tracked objects were seen, see last_tracking_note).
         The tracked states and onsets of the cloud are left in self.states / self.onsets. ValueError for a cloud
         that cannot be read at all (layout, unknown frame)."""
         self.states, self.onsets = [], []
@@ -350,8 +351,8 @@ class PerceptionNode(ManagedNode):
             self._note(self.tracking_note, "part of an object")
             labelled = [pair for pair in labelled if all(pair[1] is not obj for _, obj in parts)]
         self._take_retired()
-        if not labelled:
-            return [], self.markers(header, []), f"only parts of tracked objects seen ({self.tracking_note})"
+        if not labelled:  # nothing wrong with the cloud: no refusal (the note says what was seen)
+            return [], self.markers(header, []), ""
         features = []
         # the plane found under the objects (it may lie mm off z = 0): the topple head's support counts from it
         plane = scene.plane
@@ -488,8 +489,10 @@ class PerceptionNode(ManagedNode):
         if markers.markers:
             self.pub_markers.publish(markers)
         self.last_ms = 1e3 * (time.monotonic() - t0)
-        if not features:
+        if not features and reason:
             self._reject(msg, reason)
+            return
+        if not features:  # only parts of tracked objects: their ids hold, nothing to publish
             return
         self.processed += 1
         self.published += len(features)
