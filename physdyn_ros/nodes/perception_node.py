@@ -337,19 +337,18 @@ class PerceptionNode(ManagedNode):
         if p("single_object").value:
             chosen = self.tracker.follow(centroids, t, p("object_id").value, signatures)
             labelled = [(p("object_id").value, scene.objects[chosen])]
-            parts = labelled if self.tracker.parts else []
             if len(scene.objects) > 1:
                 self._note(f"{len(scene.objects)} objects in the cloud; single_object publishes only the one "
                            f"tracked as '{labelled[0][0]}' (set single_object false for one feature per object)",
                            "several objects")
         else:
             labelled = list(zip(self.tracker.update(centroids, t, signatures), scene.objects))
-            parts = [labelled[i] for i in self.tracker.parts]
-        if parts:  # the id's feature and pose stay the whole object's
+        if self.tracker.parts:  # the id's feature and pose stay the whole object's
+            part_of = {id(scene.objects[i]) for i in self.tracker.parts}
             self.tracking_note = "; ".join(f"{object_id}: only a part seen ({len(obj.points)} points), its feature "
-                                           f"and pose hold" for object_id, obj in parts)
+                                           f"and pose hold" for object_id, obj in labelled if id(obj) in part_of)
             self._note(self.tracking_note, "part of an object")
-            labelled = [pair for pair in labelled if all(pair[1] is not obj for _, obj in parts)]
+            labelled = [(object_id, obj) for object_id, obj in labelled if id(obj) not in part_of]
         self._take_retired()
         if not labelled:  # nothing wrong with the cloud: no refusal (the note says what was seen)
             return [], self.markers(header, []), ""
