@@ -455,7 +455,12 @@ def main() -> int:
     def p90(x) -> float | None:
         return round(float(np.percentile(x, 90)), 3) if len(x) else None
 
-    ratio = (med(pred_ratio_perc) / med(pred_ratio_true)) if pred_ratio_true and med(pred_ratio_true) else None
+    def cm(x) -> float | None:
+        return round(100 * float(np.median(x)), 2) if len(x) else None
+
+    # from the unrounded medians: med() keeps whole millimetres of errors of a few millimetres
+    ratio = (float(np.median(pred_ratio_perc)) / float(np.median(pred_ratio_true))
+             if pred_ratio_true and np.median(pred_ratio_true) > 0 else None)
     out = {
         "position_error_rest_mm": med(pos_rest), "position_error_rest_p90_mm": p90(pos_rest),
         "position_error_moving_mm": med(pos_moving), "position_error_moving_p90_mm": p90(pos_moving),
@@ -466,8 +471,7 @@ def main() -> int:
         "rest_seconds": args.rest_seconds, "initial_speed_error_frac": med(speed_err),
         "initial_spin_error_rad_s": med(spin_err),
         "prediction_error_ratio": round(ratio, 3) if ratio is not None else None,
-        "prediction_error_perception_cm": None if not pred_ratio_perc else round(100 * med(pred_ratio_perc), 2),
-        "prediction_error_truth_cm": None if not pred_ratio_true else round(100 * med(pred_ratio_true), 2),
+        "prediction_error_perception_cm": cm(pred_ratio_perc), "prediction_error_truth_cm": cm(pred_ratio_true),
         "id_kept_fraction": round(float(np.mean(kept)), 3) if kept else None, "pushes": len(pushes),
         "perception_p50_ms_100k": round(cost, 2), "camera_frame_p50_ms": med(frame_ms),
         "points_per_cloud": med(n_points), "push_to_goal_success_perception": goal_success.get("perception"),
