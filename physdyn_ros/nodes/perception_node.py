@@ -159,8 +159,9 @@ class PerceptionNode(ManagedNode):
                 "state at a push's onset on initial_state")
         declare(self, "track_com", "footprint", "centre of mass of a new track's reference: 'footprint' = the "
                 "view's geometry before outlier removal (the top faces' outline where they span the footprint, "
-                "else the solid under the view's surface), 'model' = the encoder's centre-of-mass head in x-y "
-                "(the footprint for models without a head)", choices=COM_SOURCES)
+                "else the solid under the view's surface), taken again from the grown model as turns show new "
+                "sides, 'model' = the encoder's centre-of-mass head in x-y (the footprint for models without a "
+                "head)", choices=COM_SOURCES)
         declare(self, "track_tilt", t.tilt, "register in 6 degrees of freedom; false: yaw and translation only "
                 "(objects that stay upright)")
         declare(self, "track_onset_distance", t.onset_distance, "m from the rest pose: the object moves (a push)",
@@ -408,7 +409,7 @@ class PerceptionNode(ManagedNode):
 
         update = self.poses.update(t, [(object_id, obj.points if obj.cluster is None else obj.cluster)
                                        for object_id, obj in labelled], com_of, height,
-                                   lambda object_id: scene.surface(seen[object_id][0]))
+                                   lambda object_id: scene.surface(seen[object_id][0]), refine_com=not head)
         if update.notes:
             self.tracking_note = update.notes[-1]
         self.states = [self.state_msg(s, header) for s in update.states]

@@ -20,7 +20,9 @@ Per tracked object (its id from tracking.Tracker):
   orientations. The caller gives the surface (the perception node: every point of the cloud near the object's
   cluster, `Scene.surface`; a model of one cloud's random sample leaves the next sample's points millimetres off
   it, and the fit slides to explain them) and the centre of mass (the node: `footprint_com` of that surface, or
-  the encoder's head); without them, the detection's points and their `footprint_com`;
+  the encoder's head); without them, the detection's points and their `footprint_com`. A one-sided view misplaces
+  the centre of mass; with `refine_com`, once the object has turned and the model has grown by the sides that came
+  into view, `footprint_com` of the model's points seen in several clouds becomes the origin (COM_TURN);
 * pose at every cloud: the object's points registered to the model (point-to-plane ICP) from the
   constant-velocity prediction and, when the points' centroid moved away from its prediction, from that pose
   moved by the shift too (the first cloud of a push is far from any prediction); the shifted guess wins only
@@ -111,6 +113,16 @@ GUESS_MARGIN_ABS = 1e-7
 #: A fit grows the model only when it stays within GROW_TURN (rad) and GROW_SHIFT (m) of its starting guess.
 GROW_TURN = math.radians(1.0)
 GROW_SHIFT = 0.002
+#: An object at rest that has turned by COM_TURN (rad), and whose model points seen in COM_HITS clouds
+#: (ObjectModel.hits, counted at poses that fit) have grown by COM_GROWTH since its centre of mass was estimated,
+#: gets a new estimate from those points: the sides a push turned into view (one view of a wedge with its slope
+#: away from the camera puts the centre of mass 1.5 cm towards it). A depth camera's mixed pixels that joined the
+#: model gain hardly any hits. Without a turn the model only grows denser on the same view, and its estimate would
+#: wander by millimetres. A change below COM_STEP (m) is not applied.
+COM_TURN = math.radians(20.0)
+COM_GROWTH = 1.2
+COM_STEP = 0.001
+COM_HITS = 5
 
 
 @dataclass
@@ -273,6 +285,9 @@ class PoseTrack:
     push: list = field(default_factory=list)  # moving clouds of the current push: (t, position, rotation)
     reported: bool = False  # this push's onset is out
     confidence: float = 1.0
+    refine: bool = True  # re-estimate the centre of mass from the grown model (footprint_com)
+    com_points: int = 0  # the model's size when the centre of mass was last estimated
+    com_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # ... and the pose's rotation then
 
 
 class PoseTracker:
@@ -283,6 +298,7 @@ class PoseTracker:
         self.tracks: dict[str, PoseTrack] = {}
         self._rng = np.random.default_rng(seed)
         self._last_t: float | None = None
+        self._table_height = 0.0
 
     def reset(self) -> None:
         self.tracks.clear()
@@ -296,12 +312,15 @@ class PoseTracker:
         return gone
 
     def update(self, t: float, detections, com_of: Callable[[str, np.ndarray], np.ndarray] | None = None,
-               table_height: float = 0.0, surface_of: Callable[[str], np.ndarray] | None = None) -> PoseUpdate:
+               table_height: float = 0.0, surface_of: Callable[[str], np.ndarray] | None = None,
+               refine_com: bool = True) -> PoseUpdate:
         """detections: (object_id, points (N, 3) table frame) seen in the cloud of time t (s). A track's reference
         is captured on a first sighting or after a reset: surface_of(object_id) gives the points of its model (the
         object as densely as the cloud has it; default: the detection's points), and com_of(object_id, those
-        points) its centre-of-mass estimate (3,) (default: footprint_com of them)."""
+        points) its centre-of-mass estimate (3,) (default: footprint_com of them). refine_com: new tracks take
+        footprint_com of their grown model at rest (COM_TURN); False keeps com_of's estimate for good."""
         out = PoseUpdate()
+        self._table_height = float(table_height)
         if self._last_t is not None and t < self._last_t - self.config.max_gap:
             out.notes.append(f"time went back from {self._last_t:.3f} s to {t:.3f} s (a replayed bag, a reset clock): "
                              f"{len(self.tracks)} pose track(s) dropped")
@@ -321,6 +340,7 @@ class PoseTracker:
                 dense = pts if surface_of is None else np.asarray(surface_of(object_id), dtype=np.float64)
                 com = footprint_com(dense, table_height) if com_of is None else com_of(object_id, dense)
                 track = self._capture(object_id, dense, t, np.asarray(com, dtype=np.float64), pts.mean(axis=0))
+                track.refine = refine_com
                 out.states.append(self._state(track, "reference captured"))
                 continue
             state, onset = self._step(track, pts, t)
@@ -334,7 +354,7 @@ class PoseTracker:
                  ) -> PoseTrack:
         cfg = self.config
         model = ObjectModel(pts - com, cfg.model_voxel, cfg.model_points)
-        track = PoseTrack(object_id, model, np.eye(3), com.copy(), centroid, t)
+        track = PoseTrack(object_id, model, np.eye(3), com.copy(), centroid, t, com_points=len(model.points))
         track.history.append((t, com.copy(), np.eye(3)))
         track.rest_position, track.rest_rotation, track.rest_t = com.copy(), np.eye(3), t
         self.tracks[object_id] = track
@@ -399,8 +419,29 @@ class PoseTracker:
             # new faces join the model only at a pose the motion predicted: points added at a pose that a fit
             # turned a few degrees off pull the next fits further off (a yaw that ran away by 100 deg in 25 clouds)
             track.model.grow((sub - fit.translation) @ fit.rotation)
+            track.model.observe((pts - fit.translation) @ fit.rotation)
         onset = self._onset(track)
+        if not track.moving:
+            seen = track.model.hits >= COM_HITS
+            if track.refine and int(seen.sum()) >= COM_GROWTH * track.com_points and np.linalg.norm(
+                    Rotation.from_matrix(track.rotation @ track.com_rotation.T).as_rotvec()) >= COM_TURN:
+                self._refine_com(track, track.model.points[seen])
         return self._state(track, note), onset
+
+    def _refine_com(self, track: PoseTrack, seen: np.ndarray) -> None:
+        """footprint_com of the model's points `seen` at the current pose becomes the track's origin. The model's
+        points, the pose history and the rest pose move with it, so that no motion, twist or onset comes of the
+        step."""
+        track.com_points, track.com_rotation = len(seen), track.rotation.copy()
+        rot = track.rotation
+        com = footprint_com(seen @ rot.T + track.position, self._table_height)
+        if float(np.linalg.norm(com - track.position)) < COM_STEP:
+            return
+        offset = rot.T @ (com - track.position)  # model frame
+        track.model.move_origin(offset)
+        track.position = track.position + rot @ offset
+        track.history = deque(((t, p + r @ offset, r) for t, p, r in track.history), maxlen=track.history.maxlen)
+        track.rest_position = track.rest_position + track.rest_rotation @ offset
 
     def _twist(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
         """Line fit through the recent poses (see the module docstring); zero at rest or with one pose."""

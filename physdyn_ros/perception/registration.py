@@ -79,25 +79,46 @@ class ObjectModel:
 
     def __init__(self, points: np.ndarray, voxel: float = 0.003, max_points: int = 3000) -> None:
         self.voxel, self.max_points = float(voxel), int(max_points)
-        self.points = self._thin(np.asarray(points, dtype=np.float64))
+        pts = np.asarray(points, dtype=np.float64)
+        self.points = pts[self._thin(pts)]
+        # clouds that had a point within 1.5 voxels of each model point (observe): a surface seen at rest gains
+        # one a cloud, a depth camera's mixed pixels, scattered along their rays, hardly any
+        self.hits = np.zeros(len(self.points), dtype=np.int64)
         self._pending: list[np.ndarray] = []
         self._index()
 
     def _thin(self, pts: np.ndarray) -> np.ndarray:
-        """One point per voxel (the first), at most max_points (an even subset)."""
+        """Indices of one point per voxel (the first), at most max_points (an even subset)."""
+        keep = np.arange(len(pts))
         if len(pts) == 0 or self.voxel <= 0:
-            return pts
+            return keep
         keys = np.floor(pts / self.voxel).astype(np.int64)
         _, first = np.unique(keys, axis=0, return_index=True)
-        pts = pts[np.sort(first)]
-        if len(pts) > self.max_points:
-            pts = pts[np.linspace(0, len(pts) - 1, self.max_points).astype(int)]
-        return pts
+        keep = np.sort(first)
+        if len(keep) > self.max_points:
+            keep = keep[np.linspace(0, len(keep) - 1, self.max_points).astype(int)]
+        return keep
+
+    def observe(self, observed_in_model: np.ndarray) -> None:
+        """Count a cloud's points (model frame, at a pose that fits) against the model points they lie near."""
+        if not len(observed_in_model):
+            return
+        d, idx = self.tree.query(observed_in_model, distance_upper_bound=1.5 * self.voxel)
+        seen = np.unique(idx[np.isfinite(d)])
+        self.hits[seen] += 1
 
     def _index(self) -> None:
         self.tree = cKDTree(self.points)
         self.size = max(0.01, float(np.sqrt(np.mean(np.sum(self.points ** 2, axis=1)))))  # m, RMS radius
         self.normals = estimate_normals(self.points, tree=self.tree)
+
+    def move_origin(self, offset: np.ndarray) -> None:
+        """Put the model's origin at `offset` (model frame): its points move by -offset (normals unchanged)."""
+        offset = np.asarray(offset, dtype=np.float64)
+        self.points = self.points - offset
+        self._pending = [p - offset for p in self._pending]
+        self.tree = cKDTree(self.points)
+        self.size = max(0.01, float(np.sqrt(np.mean(np.sum(self.points ** 2, axis=1)))))
 
     def grow(self, observed_in_model: np.ndarray, reach: float = 0.02) -> int:
         """Add points (model frame) that lie farther than one voxel from the model but within `reach` of it
@@ -111,7 +132,10 @@ class ObjectModel:
             self._pending.append(new)
         waiting = sum(len(p) for p in self._pending)
         if waiting >= max(20, 0.1 * len(self.points)):
-            self.points = self._thin(np.vstack([self.points] + self._pending))
+            pts = np.vstack([self.points] + self._pending)
+            hits = np.concatenate([self.hits, np.zeros(waiting, dtype=np.int64)])
+            keep = self._thin(pts)
+            self.points, self.hits = pts[keep], hits[keep]
             self._pending = []
             self._index()
         return len(new)
