@@ -350,3 +350,15 @@ def test_model_hits_count_surfaces_seen_again_and_move_with_the_origin():
     model.move_origin(np.array([0.01, 0.0, 0.0]))
     np.testing.assert_allclose(model.points, before - [0.01, 0.0, 0.0])
     assert model.tree.query([-0.01, 0.0, 0.0])[0] < 0.003  # the index follows
+
+
+def test_moving_the_origin_keeps_the_voxel_grid_of_the_model():
+    """After move_origin by a fraction of a voxel the next growth keeps every point the model had: its thinning
+    still sees one point per voxel (on a moved grid, neighbours shared cells and 1/3 of a face was dropped)."""
+    rng = np.random.default_rng(1)
+    face = np.column_stack([rng.uniform(-0.05, 0.05, (20000, 2)), np.zeros(20000)])
+    model = ObjectModel(face, voxel=0.003)
+    n = len(model.points)
+    model.move_origin(np.array([0.0014, 0.0016, 0.0]))
+    model.grow(np.column_stack([rng.uniform(-0.05, 0.05, (200, 2)), np.full(200, 0.01)]))
+    assert len(model.points) >= n + 100 and len(model.hits) == len(model.points), (n, len(model.points))

@@ -79,6 +79,9 @@ class ObjectModel:
 
     def __init__(self, points: np.ndarray, voxel: float = 0.003, max_points: int = 3000) -> None:
         self.voxel, self.max_points = float(voxel), int(max_points)
+        # the voxel grid stays where it was when the origin moves (move_origin): a grid moved by a fraction of a
+        # voxel would put neighbours in one cell at the next thinning and drop them for good
+        self._grid = np.zeros(3)
         pts = np.asarray(points, dtype=np.float64)
         self.points = pts[self._thin(pts)]
         # clouds that had a point within 1.5 voxels of each model point (observe): a surface seen at rest gains
@@ -92,7 +95,7 @@ class ObjectModel:
         keep = np.arange(len(pts))
         if len(pts) == 0 or self.voxel <= 0:
             return keep
-        keys = np.floor(pts / self.voxel).astype(np.int64)
+        keys = np.floor((pts + self._grid) / self.voxel).astype(np.int64)
         _, first = np.unique(keys, axis=0, return_index=True)
         keep = np.sort(first)
         if len(keep) > self.max_points:
@@ -101,11 +104,10 @@ class ObjectModel:
 
     def observe(self, observed_in_model: np.ndarray) -> None:
         """Count a cloud's points (model frame, at a pose that fits) against the model points they lie near."""
-        if not len(observed_in_model):
+        if not len(observed_in_model) or not len(self.points):
             return
-        d, idx = self.tree.query(observed_in_model, distance_upper_bound=1.5 * self.voxel)
-        seen = np.unique(idx[np.isfinite(d)])
-        self.hits[seen] += 1
+        d, _ = cKDTree(observed_in_model).query(self.points, distance_upper_bound=1.5 * self.voxel)
+        self.hits[np.isfinite(d)] += 1
 
     def _index(self) -> None:
         self.tree = cKDTree(self.points)
@@ -115,6 +117,7 @@ class ObjectModel:
     def move_origin(self, offset: np.ndarray) -> None:
         """Put the model's origin at `offset` (model frame): its points move by -offset (normals unchanged)."""
         offset = np.asarray(offset, dtype=np.float64)
+        self._grid = self._grid + offset
         self.points = self.points - offset
         self._pending = [p - offset for p in self._pending]
         self.tree = cKDTree(self.points)
