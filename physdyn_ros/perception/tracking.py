@@ -103,6 +103,13 @@ class Track:
         """smaller(), within PART_HOLD s of the last whole view at time t: a part that stands in for its object."""
         return t - self.last_seen <= PART_HOLD and self.smaller(signature, tolerance)
 
+    def inside(self, centroids: np.ndarray) -> np.ndarray:
+        """Which of the centroids (N, 3) lie within EXTENT times the larger x-y spread of the track's centroid (on
+        its object); none without a signature."""
+        if self.signature is None:
+            return np.zeros(len(centroids), dtype=bool)
+        return np.linalg.norm(centroids[:, :2] - self.centroid[:2], axis=1) <= EXTENT * self.signature[2]
+
     def take_signature(self, signature: np.ndarray, tolerance: float) -> None:
         """The running signature after a followed detection; a view that stayed smaller past PART_HOLD is the
         object's new view (it turned), and its signature starts over."""
@@ -248,10 +255,8 @@ class Tracker:
             for j, tr in enumerate(self.tracks):
                 if j in taken or not tr.fragment(sig[i], self.shape_tolerance, t):
                     continue
-                assert tr.signature is not None  # fragment() holds it
-                d = float(np.linalg.norm(c[i, :2] - tr.centroid[:2]))
-                if d <= EXTENT * tr.signature[2]:
-                    pairs.append((d, i, j))
+                if tr.inside(c[i:i + 1])[0]:
+                    pairs.append((float(np.linalg.norm(c[i, :2] - tr.centroid[:2])), i, j))
         out: dict[int, int] = {}
         for _, i, j in sorted(pairs):
             if i not in out and j not in out.values():
@@ -344,9 +349,7 @@ class Tracker:
             whole = np.flatnonzero(~part & (dist <= self.gate))
             best: int | None = int(whole[np.argmin(dist[whole])]) if len(whole) else None
             if best is None and part.any():
-                assert tr.signature is not None  # fragment() holds it
-                inside = part & ((dist <= self.gate)
-                                 | (np.linalg.norm(c[:, :2] - tr.centroid[:2], axis=1) <= EXTENT * tr.signature[2]))
+                inside = part & ((dist <= self.gate) | tr.inside(c))
                 if inside.any():  # seen, but neither moved nor kept alive by it
                     best = int(np.flatnonzero(inside)[np.argmin(dist[inside])])
                     self.parts = [best]
