@@ -43,11 +43,11 @@ int physdyn_cell_bf16_simd(void) {
 }
 
 #ifdef PHYSDYN_CELL_BF16
-// sigmoid(x) = 1 / (1 + exp(-x)). exp(-x) with x clamped to [-88, 88] (NaN passes): -x = n ln2 + r with |r| <= ln2 / 2 (ln2
-// in two parts), exp(r) = 1 + r + r^2 q(r) with a cubic q fitted for the least maximal relative error (2e-7, 3
-// ulp of float32: far below the bf16 rounding of the gates it is applied to), times 2^n by scalef. Then 1 / d by
-// the 14-bit reciprocal and one Newton step (2^-28 relative), not a division, whose throughput would bound the
-// whole pass. 17 vector operations.
+// sigmoid(x) = 1 / (1 + exp(-x)). exp(-x) with x clamped to [-88, 88] (NaN passes): -x = n ln2 + r with
+// |r| <= ln2 / 2 (ln2 in two parts), exp(r) = 1 + r + r^2 q(r) with a cubic q fitted for the least maximal relative
+// error (2e-7, 3 ulp of float32: far below the bf16 rounding of the gates it is applied to), times 2^n by scalef.
+// Then 1 / d by the 14-bit reciprocal and one Newton step (2^-28 relative), not a division, whose throughput would
+// bound the whole pass. 17 vector operations.
 static inline __m512 sigmoid512(__m512 x) {
   // max and min return their second operand when either is NaN: a NaN gate stays NaN, as in torch
   x = _mm512_min_ps(_mm512_set1_ps(88.0f), _mm512_max_ps(_mm512_set1_ps(-88.0f), x));

@@ -489,10 +489,9 @@ class PerceptionNode(ManagedNode):
         if markers.markers:
             self.pub_markers.publish(markers)
         self.last_ms = 1e3 * (time.monotonic() - t0)
-        if not features and reason:
-            self._reject(msg, reason)
-            return
-        if not features:  # only parts of tracked objects: their ids hold, nothing to publish
+        if not features:  # without a reason: only parts of tracked objects, whose ids hold; nothing to publish
+            if reason:
+                self._reject(msg, reason)
             return
         self.processed += 1
         self.published += len(features)

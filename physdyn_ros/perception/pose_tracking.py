@@ -298,7 +298,6 @@ class PoseTracker:
         self.tracks: dict[str, PoseTrack] = {}
         self._rng = np.random.default_rng(seed)
         self._last_t: float | None = None
-        self._table_height = 0.0
 
     def reset(self) -> None:
         self.tracks.clear()
@@ -320,7 +319,6 @@ class PoseTracker:
         points) its centre-of-mass estimate (3,) (default: footprint_com of them). refine_com: new tracks take
         footprint_com of their grown model at rest (COM_TURN); False keeps com_of's estimate for good."""
         out = PoseUpdate()
-        self._table_height = float(table_height)
         if self._last_t is not None and t < self._last_t - self.config.max_gap:
             out.notes.append(f"time went back from {self._last_t:.3f} s to {t:.3f} s (a replayed bag, a reset clock): "
                              f"{len(self.tracks)} pose track(s) dropped")
@@ -343,7 +341,7 @@ class PoseTracker:
                 track.refine = refine_com
                 out.states.append(self._state(track, "reference captured"))
                 continue
-            state, onset = self._step(track, pts, t)
+            state, onset = self._step(track, pts, t, table_height)
             out.states.append(state)
             if onset is not None:
                 out.onsets.append(onset)
@@ -374,7 +372,8 @@ class PoseTracker:
             out.append((rot, pos + shift))
         return out
 
-    def _step(self, track: PoseTrack, pts: np.ndarray, t: float) -> tuple[TrackedState, TrackedState | None]:
+    def _step(self, track: PoseTrack, pts: np.ndarray, t: float, table_height: float
+              ) -> tuple[TrackedState, TrackedState | None]:
         cfg = self.config
         note = ""
         gap = t - track.t > cfg.max_gap
@@ -425,16 +424,16 @@ class PoseTracker:
             seen = track.model.hits >= COM_HITS
             if track.refine and int(seen.sum()) >= COM_GROWTH * track.com_points and np.linalg.norm(
                     Rotation.from_matrix(track.rotation @ track.com_rotation.T).as_rotvec()) >= COM_TURN:
-                self._refine_com(track, track.model.points[seen])
+                self._refine_com(track, track.model.points[seen], table_height)
         return self._state(track, note), onset
 
-    def _refine_com(self, track: PoseTrack, seen: np.ndarray) -> None:
+    def _refine_com(self, track: PoseTrack, seen: np.ndarray, table_height: float) -> None:
         """footprint_com of the model's points `seen` at the current pose becomes the track's origin. The model's
         points, the pose history and the rest pose move with it, so that no motion, twist or onset comes of the
         step."""
         track.com_points, track.com_rotation = len(seen), track.rotation.copy()
         rot = track.rotation
-        com = footprint_com(seen @ rot.T + track.position, self._table_height)
+        com = footprint_com(seen @ rot.T + track.position, table_height)
         if float(np.linalg.norm(com - track.position)) < COM_STEP:
             return
         offset = rot.T @ (com - track.position)  # model frame

@@ -110,9 +110,12 @@ class ObjectModel:
         self.hits[np.isfinite(d)] += 1
 
     def _index(self) -> None:
+        self._tree()
+        self.normals = estimate_normals(self.points, tree=self.tree)
+
+    def _tree(self) -> None:
         self.tree = cKDTree(self.points)
         self.size = max(0.01, float(np.sqrt(np.mean(np.sum(self.points ** 2, axis=1)))))  # m, RMS radius
-        self.normals = estimate_normals(self.points, tree=self.tree)
 
     def move_origin(self, offset: np.ndarray) -> None:
         """Put the model's origin at `offset` (model frame): its points move by -offset (normals unchanged)."""
@@ -120,8 +123,7 @@ class ObjectModel:
         self._grid = self._grid + offset
         self.points = self.points - offset
         self._pending = [p - offset for p in self._pending]
-        self.tree = cKDTree(self.points)
-        self.size = max(0.01, float(np.sqrt(np.mean(np.sum(self.points ** 2, axis=1)))))
+        self._tree()
 
     def grow(self, observed_in_model: np.ndarray, reach: float = 0.02) -> int:
         """Add points (model frame) that lie farther than one voxel from the model but within `reach` of it
