@@ -51,9 +51,10 @@ pybullet_push_cpu_ms, b1_speedup_vs_pybullet, b1_kernel (c or numpy), rollout_b1
 b1_numpy_speedup_vs_pybullet (the numpy kernel timed beside the C kernel), batched_traj_per_s_1thread,
 batched_speedup_vs_pybullet_per_core, matmul_gflops_1thread, batched_gflops_1thread, batched_fraction_of_peak,
 kernel_fraction_of_peak (of the precision used), mflop_per_rollout, msg_build_ms, precision (used), cpu_flags,
-bf16_arithmetic, per_precision (each precision's batched, kernel and product figures and its peak; for bf16 its
-cell, c or torchscript, and batched_traj_per_s_torchscript_cell), batch,
-horizon, threads. A figure that could not
+bf16_arithmetic, per_precision (each precision's batched, kernel and product figures and its peak; a batch's
+time split into the products, the model's elementwise work and step overhead, and the Predictor's post-processing,
+against the time a batch may take at half the peak; for bf16 its cell, c or torchscript, and
+batched_traj_per_s_torchscript_cell), batch, horizon, threads. A figure that could not
 be measured (no pybullet, no rclpy, no bf16 run) is null, never a traceback.
 Without a shipped model (physdyn_ros/models/default.pt) the default config is timed with random weights: speed
 does not depend on the weights.
@@ -467,6 +468,14 @@ def main() -> int:
                  "steps" if prod_ms else "")
               + (f"; ceiling at the peak {ceiling_rate:.0f} trajectories/s = {ceiling_rate * pyb_cpu_s:.0f}x pybullet"
                  if pyb_cpu_s else ""))
+        # where the time of a batch goes, against what the whole batch may take at half the matmul peak
+        half_peak_ms = 1e3 * args.batch * flops / (0.5 * peak * 1e9)
+        batch_ms, kernel_ms = 1e3 * args.batch / rate, 1e3 * args.batch / kernel_rate
+        elementwise_ms = kernel_ms - args.horizon * prod_ms if prod_ms else None
+        print(f"  per batch of {args.batch}: {batch_ms:.1f} ms = the model {kernel_ms:.1f} ms ("
+              + (f"products {args.horizon * prod_ms:.1f}, elementwise work and step overhead {elementwise_ms:.1f}"
+                 if prod_ms else "") + f") + the Predictor's frames, rules and topple head {batch_ms - kernel_ms:.1f}"
+              f"; at 50 % of the peak the whole batch may take {half_peak_ms:.1f} ms")
         ts_rate = float(np.median(f["ts_cell_rate"])) if f["ts_cell_rate"] else None
         if ts_rate:
             print(f"  the same batch with the TorchScript cell, head and prior: {ts_rate:.0f} trajectories/s, "
@@ -475,7 +484,9 @@ def main() -> int:
                          "batched_fraction_of_peak": r3(fraction), "batched_speedup_vs_pybullet_per_core": r3(speedup),
                          "kernel_traj_per_s_1thread": r3(kernel_rate), "kernel_fraction_of_peak": r3(kernel_fraction),
                          "kernel_speedup_vs_pybullet_per_core": r3(kernel_speedup), "matmul_gflops_1thread": r3(peak),
-                         "lstm_products_ms_per_step": r3(prod_ms), "ceiling_traj_per_s_1thread": r3(ceiling_rate)}
+                         "lstm_products_ms_per_step": r3(prod_ms), "ceiling_traj_per_s_1thread": r3(ceiling_rate),
+                         "batch_ms": r3(batch_ms), "elementwise_ms_per_batch": r3(elementwise_ms),
+                         "postprocess_ms_per_batch": r3(batch_ms - kernel_ms), "half_peak_batch_ms": r3(half_peak_ms)}
         if prec == "bf16":
             summary[prec].update(cell="c" if c_cell else "torchscript",
                                  batched_traj_per_s_torchscript_cell=r3(ts_rate))
