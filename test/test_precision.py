@@ -89,6 +89,23 @@ def test_auto_follows_the_cpu_flags_and_the_batch(monkeypatch):
         assert prec.resolve_precision("auto", "cuda:0") == "fp32"  # the bf16 kernel is the CPU's
 
 
+def test_auto_keeps_fp32_where_onednn_is_capped_below_bf16(monkeypatch):
+    flags(monkeypatch, SAPPHIRE_RAPIDS)
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        monkeypatch.delenv(name, raising=False)
+    for name, cap in (("ONEDNN_MAX_CPU_ISA", "AVX2"), ("ONEDNN_MAX_CPU_ISA", "avx512_core_vnni"),
+                      ("DNNL_MAX_CPU_ISA", "AVX512_CORE")):
+        monkeypatch.setenv(name, cap)
+        assert not prec.cpu_has_bf16(), cap  # oneDNN would emulate the bf16 products: 100x slower
+        assert prec.resolve_precision("auto", "cpu", 4096) == "fp32"
+        assert prec.resolve_precision("bf16", "cpu", 4096) == "bf16"  # forced: runs
+        monkeypatch.delenv(name)
+    for cap in ("AVX512_CORE_BF16", "AVX512_CORE_AMX", "ALL", ""):
+        monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", cap)
+        assert prec.cpu_has_bf16(), cap
+        assert prec.resolve_precision("auto", "cpu", 4096) == "bf16"
+
+
 def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
     from physdyn_ros.predictor import Predictor
 
@@ -101,7 +118,9 @@ def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
         prec.resolve_precision("bf16", "cuda")
 
 
-def test_the_flag_reader_reads_this_cpu():
+def test_the_flag_reader_reads_this_cpu(monkeypatch):
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        monkeypatch.delenv(name, raising=False)
     reported = prec.cpu_flags()
     assert isinstance(reported, frozenset)
     if Path("/proc/cpuinfo").is_file():

@@ -19,6 +19,7 @@ arithmetic; elsewhere torch emulates them, slower than float32.
 from __future__ import annotations
 
 import functools
+import os
 from typing import FrozenSet, Optional
 
 import torch
@@ -33,6 +34,10 @@ PRECISIONS = ("auto", "fp32", "bf16")
 AUTO_BF16_ROWS = 128
 #: CPU flags (as /proc/cpuinfo and lscpu name them) of bf16 arithmetic: AVX-512 BF16 dot products, AMX tiles.
 BF16_FLAGS = ("avx512_bf16", "amx_bf16")
+#: Caps of oneDNN's instruction set (the environment variable ONEDNN_MAX_CPU_ISA, or the older DNNL_MAX_CPU_ISA)
+#: below bf16 arithmetic: under one of them oneDNN runs bf16 products without the CPU's bf16 instructions, about
+#: 100x slower than float32 (bench/bench_predictor.py, one Sapphire Rapids core, ONEDNN_MAX_CPU_ISA=AVX2).
+NO_BF16_ISA_CAPS = ("SSE41", "AVX", "AVX2", "AVX2_VNNI", "AVX2_VNNI_2", "AVX512_CORE", "AVX512_CORE_VNNI")
 #: Flags the benchmark reports (what the kernels' libraries can use).
 REPORTED_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 
@@ -60,9 +65,21 @@ def cpu_flags() -> FrozenSet[str]:
     return frozenset(found)
 
 
+def isa_cap() -> Optional[str]:
+    """oneDNN's instruction-set cap from the environment (upper case), or None where none is set."""
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        value = os.environ.get(name, "").strip().upper()
+        if value:
+            return value
+    return None
+
+
 def cpu_has_bf16() -> bool:
-    """True where the CPU reports bf16 arithmetic (BF16_FLAGS): there bf16 products run several times faster than
-    float32 ones; elsewhere torch emulates them, slower than float32."""
+    """True where the CPU reports bf16 arithmetic (BF16_FLAGS) and oneDNN may use it (no NO_BF16_ISA_CAPS cap):
+    there bf16 products run several times faster than float32 ones; elsewhere they are emulated, slower than
+    float32."""
+    if isa_cap() in NO_BF16_ISA_CAPS:
+        return False
     flags = cpu_flags()
     return any(flag in flags for flag in BF16_FLAGS)
 
