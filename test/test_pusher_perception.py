@@ -81,3 +81,34 @@ def test_push_to_goal_ignores_the_yaw_of_an_upright_cylinder(rclpy_init):
                                       yaw_tolerance=math.radians(10.0), max_pushes=3), timeout=120.0)
         assert result.success and result.outcome == "reached", result.message
         assert result.yaw_error == 0.0  # the yaw is not checked: the cloud is symmetric about its up axis
+
+
+def test_a_push_the_camera_sees_no_motion_of_does_not_end_the_goal(rclpy_init):
+    """A push too weak to move the object visibly (here the goal's mass, a fiftieth of the box's, scales the
+    planned impulse down; on a robot a mass read low from one side of the object does): the sim executes it, the
+    camera sees the object resting where it was, and the session goes on from there instead of ending in a
+    timeout."""
+    sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
+                                       Parameter("publish_cloud_rate", value=15.0)])
+    perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])
+    perception_mode = Parameter("state_source", value="perception")
+    predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
+                                                   Parameter("plan_time_budget", value=0.3)])
+    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=1.5)])
+    user = rclpy_init.create_node("weak_push_user")
+    tracked: list[ObjectState] = []
+    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    client = Client(user)
+    with Spinner(sim, perception, predictor, pusher, user, threads=8):
+        assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
+        x0, y0, _ = sim.spawn_pose
+        start, *_ = sim.sim.state(sim.object_id)
+        mass = sim.sim.get(sim.object_id).mass
+        result = client.send(goal_msg(x0 + 0.12, y0 + 0.03, object_id=tracked[-1].object_id,
+                                      position_tolerance=0.03, yaw_tolerance=math.pi, max_pushes=2,
+                                      mass=mass / 50.0), timeout=120.0)
+        assert result.outcome != "timeout", result.message
+        assert result.outcome == "out_of_pushes" and result.pushes == 2 == sim.push_id, result.message
+        pos, *_ = sim.sim.state(sim.object_id)
+        assert math.hypot(pos[0] - start[0], pos[1] - start[1]) < 0.01  # the pushes did not move it visibly
+        assert pusher.counts["pushes"] == 2
