@@ -21,7 +21,8 @@ roll-out precision the CPU has.
 Everything that is compared is measured in the same process, interleaved in --rounds rounds (a shared machine's
 load then weighs on both sides of a ratio alike), with torch on one thread:
 * CPU: the flags the kernels' libraries can use (avx2, fma, avx512f, avx512_bf16, amx_tile, amx_bf16, as lscpu
-  names them) and whether the CPU has bf16 arithmetic (learn/precision.cpu_has_bf16).
+  names them) and whether the CPU has bf16 arithmetic that oneDNN may use (learn/precision.cpu_has_bf16: not
+  under an ONEDNN_MAX_CPU_ISA cap below bf16; `--precisions fp32,bf16` times the emulated bf16 there).
 * latency: one 60-step roll-out at batch 1 from an encoded ShapeCode (Predictor.rollout: the ROS predictor's and
   planner's per-query cost), p50 / p99; also encode + roll-out from a raw cloud. Batch 1 runs in float32 in
   every precision: the C kernel where it is built (learn/native.py), with the numpy kernel timed beside it.
@@ -471,11 +472,12 @@ def main() -> int:
         # where the time of a batch goes, against what the whole batch may take at half the matmul peak
         half_peak_ms = 1e3 * args.batch * flops / (0.5 * peak * 1e9)
         batch_ms, kernel_ms = 1e3 * args.batch / rate, 1e3 * args.batch / kernel_rate
-        elementwise_ms = kernel_ms - args.horizon * prod_ms if prod_ms else None
-        print(f"  per batch of {args.batch}: {batch_ms:.1f} ms = the model {kernel_ms:.1f} ms ("
-              + (f"products {args.horizon * prod_ms:.1f}, elementwise work and step overhead {elementwise_ms:.1f}"
-                 if prod_ms else "") + f") + the Predictor's frames, rules and topple head {batch_ms - kernel_ms:.1f}"
-              f"; at 50 % of the peak the whole batch may take {half_peak_ms:.1f} ms")
+        elementwise_ms = kernel_ms - args.horizon * prod_ms if prod_ms is not None else None
+        print(f"  per batch of {args.batch}: {batch_ms:.1f} ms = the model {kernel_ms:.1f} ms"
+              + (f" (products {args.horizon * prod_ms:.1f}, elementwise work and step overhead "
+                 f"{elementwise_ms:.1f})" if elementwise_ms is not None else "")
+              + f" + the Predictor's frames, rules and topple head {batch_ms - kernel_ms:.1f} (medians of separate "
+              f"runs: their difference is noisy); at 50 % of the peak the whole batch may take {half_peak_ms:.1f} ms")
         ts_rate = float(np.median(f["ts_cell_rate"])) if f["ts_cell_rate"] else None
         if ts_rate:
             print(f"  the same batch with the TorchScript cell, head and prior: {ts_rate:.0f} trajectories/s, "

@@ -266,7 +266,8 @@ class Predictor:
         FileNotFoundError if the file does not exist; learn.checkpoint.CheckpointError (a RuntimeError) if it
         is corrupt, not a physdyn checkpoint, or incompatible with this code. `threads` sets torch's CPU
         threads (process-wide); for batch-1 latency 1 thread is fastest. `precision` of batched roll-outs:
-        "auto" (bf16 matrix products where the CPU reports avx512_bf16 or amx_bf16, else fp32), "fp32" or
+        "auto" (bf16 matrix products where the CPU reports avx512_bf16 or amx_bf16 and no ONEDNN_MAX_CPU_ISA
+        cap below bf16 is set, else fp32), "fp32" or
         "bf16" (forced; correct on any CPU, slower than fp32 without bf16 arithmetic); ValueError otherwise.
         "auto" keeps batches under kernels.AUTO_BF16_ROWS in fp32 (bf16 is no faster there). The model card
         states bf16's accuracy cost; batch_precision(rows) says which a batch runs in. Batch 1 runs the C kernel

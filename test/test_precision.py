@@ -73,6 +73,13 @@ def pushes(predictors):
     return [codes[i] for i in idx], v, w, d, idx
 
 
+@pytest.fixture(autouse=True)
+def no_isa_cap(monkeypatch):
+    """No oneDNN instruction-set cap from the environment the tests run in (the tests that want one set it)."""
+    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        monkeypatch.delenv(name, raising=False)
+
+
 def test_auto_follows_the_cpu_flags_and_the_batch(monkeypatch):
     flags(monkeypatch, AVX2_ONLY)
     assert not prec.cpu_has_bf16()
@@ -91,8 +98,6 @@ def test_auto_follows_the_cpu_flags_and_the_batch(monkeypatch):
 
 def test_auto_keeps_fp32_where_onednn_is_capped_below_bf16(monkeypatch):
     flags(monkeypatch, SAPPHIRE_RAPIDS)
-    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
-        monkeypatch.delenv(name, raising=False)
     for name, cap in (("ONEDNN_MAX_CPU_ISA", "AVX2"), ("ONEDNN_MAX_CPU_ISA", "avx512_core_vnni"),
                       ("DNNL_MAX_CPU_ISA", "AVX512_CORE")):
         monkeypatch.setenv(name, cap)
@@ -118,9 +123,7 @@ def test_unknown_precisions_and_bf16_off_the_cpu_are_refused(monkeypatch):
         prec.resolve_precision("bf16", "cuda")
 
 
-def test_the_flag_reader_reads_this_cpu(monkeypatch):
-    for name in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
-        monkeypatch.delenv(name, raising=False)
+def test_the_flag_reader_reads_this_cpu():
     reported = prec.cpu_flags()
     assert isinstance(reported, frozenset)
     if Path("/proc/cpuinfo").is_file():

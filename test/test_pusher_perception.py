@@ -111,4 +111,29 @@ def test_a_push_the_camera_sees_no_motion_of_does_not_end_the_goal(rclpy_init):
         assert result.outcome == "out_of_pushes" and result.pushes == 2 == sim.push_id, result.message
         pos, *_ = sim.sim.state(sim.object_id)
         assert math.hypot(pos[0] - start[0], pos[1] - start[1]) < 0.01  # the pushes did not move it visibly
-        assert pusher.counts["pushes"] == 2
+        assert pusher.counts["pushes"] == 2 == pusher.counts["pushes_unseen"]  # neither push was seen moving it
+
+
+def test_a_push_with_no_state_of_the_object_after_it_times_out(rclpy_init):
+    """The camera stops (its perception node deactivated) after the object was seen: the sim executes the push,
+    no state of the object arrives, and the goal ends in a timeout that says so: a lost object is not taken for
+    one that rests where it was."""
+    sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
+                                       Parameter("publish_cloud_rate", value=15.0)])
+    perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])
+    perception_mode = Parameter("state_source", value="perception")
+    predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
+                                                   Parameter("plan_time_budget", value=0.3)])
+    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=1.5)])
+    user = rclpy_init.create_node("lost_object_user")
+    tracked: list[ObjectState] = []
+    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    client = Client(user)
+    with Spinner(sim, perception, predictor, pusher, user, threads=8):
+        assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
+        perception.trigger_deactivate()
+        x0, y0, _ = sim.spawn_pose
+        result = client.send(goal_msg(x0 + 0.12, y0 + 0.03, object_id=tracked[-1].object_id,
+                                      position_tolerance=0.03, yaw_tolerance=math.pi, max_pushes=2), timeout=120.0)
+        assert result.outcome == "timeout" and "nor seen resting" in result.message, result.message
+        assert sim.push_id == 1 and pusher.counts["pushes_unseen"] == 0

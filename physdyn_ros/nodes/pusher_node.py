@@ -24,8 +24,8 @@ For each goal (physdyn_ros/action/PushToGoal):
 4. stop (planning.session.PushSession, the same rules as the pybullet bench): reached, toppled, refused,
    out_of_pushes; also cancelled (checked before every push), invalid (a bad goal) and timeout (no state of
    the object, or a robot's push not seen to start, within its timeout; the object did not come to rest in
-   time). A push the sim executed that is not seen to move the object within motion_timeout, while the object
-   is seen resting, counts as a push that left it there.
+   time). A push the sim executed that is not seen to move the object within motion_timeout, while states of
+   it at rest keep arriving, counts as a push that left it there (diagnostics: pushes_unseen).
 
 A thin adapter: the episode's rules live in planning.session, the planning in the predictor (which holds the
 model and the shape features), the physics in the sim node or the real world. No model is loaded here.
@@ -97,7 +97,8 @@ class PusherNode(ManagedNode):
         declare(self, "adapt", True, "aim each push by the observed / predicted slide ratio of the pushes before")
         declare(self, "steps_in", 3, "observed states fed to the model to re-predict the rest pose (0 = off)",
                 low=0, high=30)
-        declare(self, "motion_timeout", 5.0, "s for an executed push to start moving the object", low=0.1)
+        declare(self, "motion_timeout", 5.0, "s for a push the sim executed to be seen moving the object (seen "
+                "resting instead: a push that left it there)", low=0.1)
         declare(self, "external_motion_timeout", 60.0, "s for a robot to execute a push (execute_externally)",
                 low=0.1)
         declare(self, "rest_timeout", 15.0, "s for the pushed object to come to rest", low=0.1)
@@ -123,7 +124,7 @@ class PusherNode(ManagedNode):
         self._session: Optional[PushSession] = None  # the running goal's, for a result after an early stop
         self._pose: Optional[Pose2D] = None
         self.counts = {k: 0 for k in ("goals", "reached", "refused", "toppled", "out_of_pushes", "cancelled",
-                                      "invalid", "timeout", "pushes")}
+                                      "invalid", "timeout", "pushes", "pushes_unseen")}
         self.last_result = ""
         # clients hold no resources: made once, used while active
         clients = ReentrantCallbackGroup()
@@ -405,7 +406,9 @@ class PusherNode(ManagedNode):
         steps_in = int(self._param("steps_in"))
         feedback.stage = "observing"
         moved: list[ObjectState] = []
-        still: Optional[ObjectState] = None  # the latest state at rest seen since the push
+        # the resting states seen since the push: how many, the latest and when it arrived
+        still: Optional[ObjectState] = None
+        still_count, still_at = 0, 0.0
         quiet, limit = 0, motion_timeout
         deadline = time.monotonic() + limit
         while True:
@@ -421,23 +424,27 @@ class PusherNode(ManagedNode):
                                                         "the object")
                     left = deadline - time.monotonic()
                     if left <= 0:
-                        if not moved and still is not None and not req.execute_externally:
-                            # the push was executed, and the object is seen resting: too weak a push (a mass
-                            # read low from one side of the object) is a push that moved it less than the
-                            # camera shows; the session goes on from there and aims the next one farther
+                        seen_resting = (still is not None and still_count >= REST_FRAMES
+                                        and time.monotonic() - still_at < 0.5 * limit)
+                        if not moved and seen_resting and not req.execute_externally:
+                            # the push was executed and the object is still seen, resting: too weak a push (a
+                            # mass read low from one side of the object) moved it less than the camera shows;
+                            # the session goes on from there and aims the next one farther
+                            self.counts["pushes_unseen"] += 1
                             self.get_logger().warning(
                                 f"push_to_goal '{object_id}': push {feedback.push_index}: no motion seen within "
                                 f"{limit:g} s; the object rests where it was seen")
                             return still
                         what = "come to rest" if moved else "start moving"
+                        seen = "" if moved or req.execute_externally else " (nor seen resting since the push)"
                         raise EpisodeError("timeout", f"push {feedback.push_index}: the object did not {what} "
-                                                      f"within {limit:g} s")
+                                                      f"within {limit:g} s{seen}")
                     self._cond.wait(min(left, 0.5))
                     continue
             for s in new:
                 if not moved:
                     if not moving(s):
-                        still = s
+                        still, still_count, still_at = s, still_count + 1, time.monotonic()
                         continue
                     limit = float(self._param("rest_timeout"))
                     deadline = time.monotonic() + limit
