@@ -14,8 +14,9 @@
 """Pusher: the `push_to_goal` action, closed-loop pushing on top of the predictor's plan_push.
 
 For each goal (physdyn_ros/action/PushToGoal):
-1. plan: the predictor's `plan_push` (start = the object's latest object_state, goal = the session's aim: the
-   goal, corrected by the observed / predicted slide ratio of the pushes so far; planning.session);
+1. plan: the predictor's `plan_push` (start = the state this node saw the object rest in, with the points of the
+   shape feature it waited for after that rest; goal = the session's aim: the goal, corrected by the observed /
+   predicted slide ratio of the pushes so far; planning.session);
 2. push: the sim node's `push_object` executes the impulse at the contact point, or, with execute_externally,
    a robot stack reads the planned push from the feedback (stage "pushing") and executes it itself;
 3. observe: the object's states on `object_state` (state_source perception: `tracked_state`) until it rests
@@ -374,6 +375,10 @@ class PusherNode(ManagedNode):
                                     position_tolerance=aim.position_tolerance, yaw_tolerance=aim.yaw_tolerance)
         plan_req.header.frame_id = self.table_frame
         plan_req.goal_pose = pose_msg(aim.pose, float(start.pose.position.z))
+        with self._cond:  # the cloud of the feature this node waited for, seen at rest where `start` is: the
+            points = self._points.get(req.object_id)  # predictor may not have received it yet
+        if points is not None and points.width * points.height >= 4:
+            plan_req.cloud = points
         return self._call(self.plan_client, plan_req, "plan_push")
 
     def _push(self, object_id: str, plan: PlanPush.Response) -> None:
