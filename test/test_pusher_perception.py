@@ -31,21 +31,28 @@ from test_nodes_support import Spinner, wait_for
 from test_pusher import Client, goal_msg
 
 
-def test_push_to_goal_on_perception_alone(rclpy_init):
+def box_on_camera(rclpy_init, user_name: str, plan_time_budget: float, motion_timeout: float) -> tuple:
+    """A box on the sim's 15 Hz camera, the four nodes on state_source perception (perception's track id
+    "seen_box", never the sim's), and a user node with its tracked_state list and an action Client:
+    (sim, perception, predictor, pusher, user, tracked, client)."""
     sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
                                        Parameter("publish_cloud_rate", value=15.0)])
     perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])  # not the sim's id
     perception_mode = Parameter("state_source", value="perception")
     predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
-                                                   Parameter("plan_time_budget", value=0.6)])
-    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=3.0)])
+                                                   Parameter("plan_time_budget", value=plan_time_budget)])
+    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=motion_timeout)])
+    user = rclpy_init.create_node(user_name)
+    tracked: list[ObjectState] = []
+    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    return sim, perception, predictor, pusher, user, tracked, Client(user)
+
+
+def test_push_to_goal_on_perception_alone(rclpy_init):
+    sim, perception, predictor, pusher, user, tracked, client = box_on_camera(rclpy_init, "perception_user", 0.6, 3.0)
     for node, banned in ((predictor, {"object_state", "initial_twist", "observed_state"}), (pusher, {"object_state"})):
         topics = {s.topic_name.lstrip("/") for s in node.subscriptions}
         assert "tracked_state" in topics and not topics & banned, (node.get_name(), topics)
-    user = rclpy_init.create_node("perception_user")
-    tracked: list[ObjectState] = []
-    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
-    client = Client(user)
     with Spinner(sim, perception, predictor, pusher, user, threads=8):
         assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
         track = tracked[-1].object_id
@@ -88,17 +95,7 @@ def test_a_push_the_camera_sees_no_motion_of_does_not_end_the_goal(rclpy_init):
     planned impulse down; on a robot a mass read low from one side of the object does): the sim executes it, the
     camera sees the object resting where it was, and the session goes on from there instead of ending in a
     timeout."""
-    sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
-                                       Parameter("publish_cloud_rate", value=15.0)])
-    perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])
-    perception_mode = Parameter("state_source", value="perception")
-    predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
-                                                   Parameter("plan_time_budget", value=0.3)])
-    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=1.5)])
-    user = rclpy_init.create_node("weak_push_user")
-    tracked: list[ObjectState] = []
-    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
-    client = Client(user)
+    sim, perception, predictor, pusher, user, tracked, client = box_on_camera(rclpy_init, "weak_push_user", 0.3, 1.5)
     with Spinner(sim, perception, predictor, pusher, user, threads=8):
         assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
         x0, y0, _ = sim.spawn_pose
@@ -118,17 +115,7 @@ def test_a_push_with_no_state_of_the_object_after_it_times_out(rclpy_init):
     """The camera stops (its perception node deactivated) after the object was seen: the sim executes the push,
     no state of the object arrives, and the goal ends in a timeout that says so: a lost object is not taken for
     one that rests where it was."""
-    sim = SimNode(parameter_overrides=[Parameter("category", value="box"), Parameter("shape_seed", value=3),
-                                       Parameter("publish_cloud_rate", value=15.0)])
-    perception = PerceptionNode(parameter_overrides=[Parameter("object_id", value="seen_box")])
-    perception_mode = Parameter("state_source", value="perception")
-    predictor = PredictorNode(parameter_overrides=[perception_mode, Parameter("plan_max_topple_probability", value=0.6),
-                                                   Parameter("plan_time_budget", value=0.3)])
-    pusher = PusherNode(parameter_overrides=[perception_mode, Parameter("motion_timeout", value=1.5)])
-    user = rclpy_init.create_node("lost_object_user")
-    tracked: list[ObjectState] = []
-    user.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
-    client = Client(user)
+    sim, perception, predictor, pusher, user, tracked, client = box_on_camera(rclpy_init, "lost_object_user", 0.3, 1.5)
     with Spinner(sim, perception, predictor, pusher, user, threads=8):
         assert wait_for(lambda: tracked and predictor._features, 30), perception.last_error
         perception.trigger_deactivate()
