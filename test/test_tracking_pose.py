@@ -47,6 +47,7 @@ class Run:
         self.pos_rest, self.pos_move, self.ang_rest, self.ang_move = [], [], [], []
         self.onsets, self.notes, self.ids_of = [], [], [set(), set(), set()]
         self.confidence: list[float] = []
+        self.twists: list[tuple[float, np.ndarray]] = []  # object 0's: (t, linear velocity)
         d = np.array([math.cos(heading), math.sin(heading)])
         stop = v0 / a if v0 > 0 else 0.0
         for k in range(frames):
@@ -77,6 +78,7 @@ class Run:
                 (self.ang_move if j == 0 and moving else self.ang_rest).append(ang)
                 if j == 0:
                     self.confidence.append(st.confidence)
+                    self.twists.append((t, np.asarray(st.linear)))
             self.onsets += [(k, o) for o in up.onsets]
 
 
@@ -113,6 +115,19 @@ def test_a_push_gives_its_onset_and_initial_twist(v0, a, w0, heading):
     assert math.atan2(onset.linear[1], onset.linear[0]) == pytest.approx(heading, abs=0.1)
     assert np.median(run.pos_move) < 0.01 and np.percentile(run.pos_move, 90) < 0.02, run.pos_move
     assert np.degrees(np.median(run.ang_move)) < 5.0
+
+
+def test_the_states_of_a_push_carry_its_speed_at_their_instant():
+    """The predictor refines a push's prediction with the tracked states after it (from half a cloud after its
+    onset): their twist must be the push's at that instant, not a line through the rest poses before it (a fifth
+    of the speed: the model then stops the slide early) nor the mean over the last clouds of a slowing slide."""
+    v0, a, t_push = 0.9, 4.0, 1.02
+    run = Run(frames=int((t_push + v0 / a) * RATE) + 4, v0=v0, a=a, t_push=t_push, heading=0.3)
+    states = [(t, v) for t, v in run.twists if t >= t_push + 0.5 / RATE]
+    assert len(states) >= 4, [t for t, _ in run.twists]
+    for t, v in states:
+        true = max(0.0, v0 - a * (t - t_push))
+        assert abs(float(np.linalg.norm(v[:2])) - true) < 0.2 * v0, (t, np.linalg.norm(v[:2]), true)
 
 
 def test_ids_and_poses_survive_a_30_cm_slide_and_a_90_degree_turn():

@@ -30,8 +30,10 @@ Per tracked object (its id from tracking.Tracker):
   keeps the track but reports low confidence and the reason; a fit that explains the cloud no better than the
   last pose keeps that pose; the points of a fit close to its guess (the pose held, or the motion predicted)
   that fit well and lie off the model grow it;
-* twist: a least-squares line through the last `window` poses (positions, and rotation vectors relative to the
-  newest orientation) within `window_time`: zero-mean sensor noise averages out; at rest it is zero;
+* twist: a least-squares line through the last `window` poses of the push (positions, and rotation vectors
+  relative to the newest orientation) within `window_time`, slowed by `deceleration` from the poses' mean time to
+  the newest one's (a slide slows by about 0.3 m/s within the window); zero-mean sensor noise averages out; at
+  rest it is zero. The predictor refines a push's prediction with these states;
 * onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
   rest pose; the first cloud beyond that opens a push. Once `onset_frames` moving clouds are in (or the object
   rests again) and the pose has left the rest pose by twice the threshold (CONFIRM; else, within CONFIRM_FRAMES
@@ -363,7 +365,7 @@ class PoseTracker:
         moved away from its prediction (a far-off prediction, the first cloud of a push), also that pose moved by
         the shift. Both: a partial view shifts the centroid without the object moving."""
         dt = t - track.t
-        lin, ang = self._twist(track)
+        lin, ang = self._twist(track, at_newest=False)
         rot = Rotation.from_rotvec(ang * dt).as_matrix() @ track.rotation
         pos = track.position + lin * dt
         shift = pts.mean(axis=0) - (track.centroid + lin * dt)
@@ -442,17 +444,33 @@ class PoseTracker:
         track.history = deque(((t, p + r @ offset, r) for t, p, r in track.history), maxlen=track.history.maxlen)
         track.rest_position = track.rest_position + track.rest_rotation @ offset
 
-    def _twist(self, track: PoseTrack) -> tuple[np.ndarray, np.ndarray]:
-        """Line fit through the recent poses (see the module docstring); zero at rest or with one pose."""
+    def _twist(self, track: PoseTrack, at_newest: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Line fit through the recent poses (see the module docstring); zero at rest or with one pose. at_newest
+        (the published twist): the push's own poses only, brought to the newest one's instant; False: the mean
+        motion of the recent poses (the registration's constant-velocity guess)."""
         cfg = self.config
         hist = [h for h in list(track.history)[-cfg.window:] if h[0] >= track.t - cfg.window_time]
-        if len(hist) < 2 or not track.moving:
+        if not track.moving:
+            return np.zeros(3), np.zeros(3)
+        pushed = [h for h in hist if h[0] > track.rest_t]
+        own = at_newest and len(pushed) >= 2
+        if at_newest:  # the rest poses before a push read a fraction of its speed (a model fed that state stops
+            # the slide early): its own poses, or its first with the last at rest
+            hist = pushed if own else [h for h in hist if h[0] >= track.rest_t]
+        if len(hist) < 2:
             return np.zeros(3), np.zeros(3)
         ts = np.array([h[0] for h in hist])
         pos = np.array([h[1] for h in hist])
         ref = hist[-1][2]
         rv = np.array([Rotation.from_matrix(h[2] @ ref.T).as_rotvec() for h in hist])
-        return _line_velocity(ts, pos), _line_velocity(ts, rv)
+        lin, ang = _line_velocity(ts, pos), _line_velocity(ts, rv)
+        # the slope is the velocity at the poses' mean time: since then a sliding object slowed by `deceleration`
+        # (speed and spin in proportion, as friction shares them). Through the rest pose the slope is already low:
+        # the push started between the two clouds.
+        speed = float(np.linalg.norm(lin[:2]))
+        lag = float(ts[-1] - ts.mean()) if own else 0.0
+        scale = max(0.0, 1.0 - cfg.deceleration * lag / speed) if speed > 0 else 1.0
+        return scale * lin, scale * ang
 
     def _onset(self, track: PoseTrack) -> TrackedState | None:
         cfg = self.config
