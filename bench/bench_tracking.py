@@ -32,8 +32,9 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     (onsets_unpushed_motion: a collision, or a slide's end seen as a second push); initial speed error
     (relative) and spin error (rad/s) against the velocity the push set, median;
   * the prediction error ratio: the shipped model's final position error (against where the object came to
-    rest) from perception's initial_state, over the same model fed the true initial pose and twist, on the same
-    pushes and the same cloud (medians);
+    rest) from perception's initial_state and the --steps-in tracked states after it (the predictor's steps_in
+    in the perception overlay unless given: what the suite publishes last), over the same model fed the true
+    initial pose and twist, on the same pushes and the same cloud (medians);
   * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost),
     judged on the last of the push window's final 5 clouds that shows all three objects (a sparse object can
     miss one cloud's sample without losing its id);
@@ -303,6 +304,9 @@ def main() -> int:
                          "sim's renderer is exact)")
     ap.add_argument("--flying-pixels", type=float, default=0.0,
                     help="share of each cloud's points moved 1-6 cm farther along their ray (mixed pixels)")
+    ap.add_argument("--steps-in", type=int, default=None,
+                    help="tracked states after each onset fed to the model with perception's initial_state (default: "
+                         "the predictor's steps_in in the perception overlay, what the suite does)")
     ap.add_argument("--verbose", action="store_true", help="a line per push and per goal trial")
     args = ap.parse_args()
     if not (math.isfinite(args.depth_noise) and args.depth_noise >= 0.0 and 0.0 <= args.flying_pixels <= 1.0):
@@ -316,7 +320,9 @@ def main() -> int:
     from physdyn_ros.nodes.perception_node import PerceptionNode
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
-    from physdyn_ros.ros.convert import ns_to_time
+    from physdyn_ros.ros.convert import ns_to_time, time_to_ns
+    from physdyn_ros.ros.pending import PendingRefinement
+    from physdyn_ros.ros.requests import observed_steps
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
     from physdyn_ros.sim.camera import CameraSpec, DepthCamera
@@ -333,6 +339,9 @@ def main() -> int:
                                                Parameter("track_com", value=args.track_com)]
                           + [Parameter(k, value=v) for k, v in overlay.items()])
     predictor = Predictor.load(threads=1)
+    steps_in = (args.steps_in if args.steps_in is not None else
+                int(parse_overrides("predictor", state_source_overlay("perception").get("predictor", []))
+                    .get("steps_in", 0)))
     spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), args.resolution, 60.0)
     rest_frames = int(round(args.rest_seconds * 15))
     frames = rest_frames + args.pushes * FRAMES_PER_PUSH + 15
@@ -426,8 +435,14 @@ def main() -> int:
             continue
         cloud = cloud_to_xyz(feat.points)
         code = predictor.encode(cloud)
+        # the tracked states after the onset, as the predictor node refines with them (ros/pending.refine)
+        t_on = time_to_ns(s.header.stamp)
+        f_on = max(frame_of(s), 0)  # states published before the onset was (detection delay) count too
+        after = [tracked[j][tid] for j in range(f_on, min(f_on + steps_in + 2, frames)) if tid in tracked[j]]
+        after = [a for a in after if time_to_ns(a.header.stamp) >= t_on + DT_NS // 2][:steps_in]
+        onset = PendingRefinement(tid, t_on, xyz(s.pose.position), quat(s), v_est, xyz(s.twist.angular), feat, 0.0)
         est = predictor.rollout(code, v_est, xyz(s.twist.angular), 60, position=xyz(s.pose.position),
-                                orientation=quat(s))
+                                orientation=quat(s), observed=observed_steps(after, onset) if after else None)
         p0, q0, _, _ = truth[max(p["frame"] - 1, 0)][p["id"]]
         ref = predictor.rollout(code, p["v"], p["w"], 60, position=p0, orientation=q0)
         pred_ratio_perc.append(float(np.linalg.norm(est.positions[-1][:2] - rest_pos[:2])))
@@ -476,7 +491,7 @@ def main() -> int:
         "perception_p50_ms_100k": round(cost, 2), "camera_frame_p50_ms": med(frame_ms),
         "points_per_cloud": med(n_points), "push_to_goal_success_perception": goal_success.get("perception"),
         "push_to_goal_success_truth": goal_success.get("sim"), "push_to_goal_trials": args.goals,
-        "depth_noise_m": args.depth_noise, "flying_pixels": args.flying_pixels,
+        "steps_in": steps_in, "depth_noise_m": args.depth_noise, "flying_pixels": args.flying_pixels,
     }
     print(f"{len(pushes)} pushes after {args.rest_seconds:g} s at rest; {args.resolution[0]} x {args.resolution[1]} "
           f"camera clouds at 15 Hz; three objects")

@@ -361,5 +361,5 @@ def test_the_launch_files_state_source_overlays_name_declared_parameters():
             for name, value in parse_overrides(node, assignments).items():
                 assert name in known and type(value) is type(known[name]), (source, node, name, value)
     assert state_source_overlay("perception")["sim"] == ["cloud_source:=camera", "publish_cloud_rate:=15.0"]
-    assert state_source_overlay("perception")["predictor"][1:] == ["plan_whole_cloud:=False"]
+    assert state_source_overlay("perception")["predictor"][1:] == ["steps_in:=3", "plan_whole_cloud:=False"]
     assert state_source_overlay("perception")["perception"] == ["voxel_size:=0.005"]

@@ -22,9 +22,10 @@ from rclpy.parameter import Parameter
 
 from physdyn_ros.msg import ObjectState
 from physdyn_ros.nodes.perception_node import PerceptionNode
+from physdyn_ros.perception.pose_tracking import first_cloud_velocity
 from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
 from physdyn_ros.ros.cloud import xyz_to_cloud
-from physdyn_ros.ros.convert import ns_to_time, time_to_ns
+from physdyn_ros.ros.convert import ns_to_time, pose_to_numpy, time_to_ns, twist_to_numpy
 from physdyn_ros.ros.qos import STATE_QOS
 from test_nodes_support import Spinner, tiny_model, wait_for  # noqa: F401 - fixture
 
@@ -122,9 +123,13 @@ def test_the_predictor_runs_on_perception_alone(rclpy_init, tiny_model):
     listener = rclpy_init.create_node("prediction_listener")
     predicted: list[PredictedTrajectory] = []
     initial: list[ObjectState] = []
+    tracked: list[ObjectState] = []
     listener.create_subscription(PredictedTrajectory, "predicted_trajectory", predicted.append, LATCHED)
     listener.create_subscription(ObjectState, "initial_state", initial.append, STATE_QOS)
-    v0, a, t_push, heading = 0.8, 4.0, 0.5, 0.4
+    listener.create_subscription(ObjectState, "tracked_state", tracked.append, STATE_QOS)
+    # the push starts 0.7 cloud before the next cloud: the tracker's twist there reads a slower mean since the
+    # rest cloud
+    v0, a, t_push, heading = 0.8, 4.0, 0.4865, 0.4
     base = 10**9
     with Spinner(perception, predictor, listener):
         assert wait_for(lambda: perception.pub_initial.get_subscription_count() > 1, 10)
@@ -145,6 +150,17 @@ def test_the_predictor_runs_on_perception_alone(rclpy_init, tiny_model):
     assert (start.x, start.y) == (onset.pose.position.x, onset.pose.position.y)
     assert first.states[0].twist.linear.x == onset.twist.linear.x
     assert predictor.rejected == 0, predictor.last_error
+    # the refinement's first observed state: its velocity from its pose's change since the onset
+    t0 = time_to_ns(onset.header.stamp)
+    state = next(s for s in tracked if s.object_id == onset.object_id and time_to_ns(s.header.stamp) >= t0 + DT_NS // 2)
+    refined = next(p for p in predicted if p.steps_in == 2)
+    tau = 1e-9 * (time_to_ns(state.header.stamp) - t0)
+    p0, q0 = pose_to_numpy(onset.pose)
+    lin, _ = first_cloud_velocity(tau, p0, q0, *twist_to_numpy(onset.twist), *pose_to_numpy(state.pose))
+    fed = twist_to_numpy(refined.states[1].twist)[0]
+    assert fed == pytest.approx(lin, abs=1e-5), (fed, lin, twist_to_numpy(state.twist)[0])
+    true = v0 - a * (1e-9 * (time_to_ns(state.header.stamp) - base) - t_push)
+    assert abs(float(np.linalg.norm(fed[:2])) - true) < 0.1 * true, (fed, true, twist_to_numpy(state.twist)[0])
 
 
 def test_bad_input_keeps_or_retires_tracks_with_a_reason_on_diagnostics(rclpy_init, tiny_model):

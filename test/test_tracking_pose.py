@@ -22,7 +22,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from physdyn_ros.perception import SceneConfig, Tracker, segment
-from physdyn_ros.perception.pose_tracking import PoseConfig, PoseTracker, column_com, fit_onset, footprint_com
+from physdyn_ros.perception.pose_tracking import (PoseConfig, PoseTracker, column_com, first_cloud_velocity, fit_onset,
+                                                footprint_com)
 from physdyn_ros.perception.registration import ObjectModel, register
 from physdyn_ros.perception.synthetic import DEFAULT_OBJECTS, tabletop_scene
 from physdyn_ros.perception.tracking import shape_signature
@@ -377,3 +378,18 @@ def test_moving_the_origin_keeps_the_voxel_grid_of_the_model():
     model.move_origin(np.array([0.0014, 0.0016, 0.0]))
     model.grow(np.column_stack([rng.uniform(-0.05, 0.05, (200, 2)), np.full(200, 0.01)]))
     assert len(model.points) >= n + 100 and len(model.hits) == len(model.points), (n, len(model.points))
+
+
+def test_first_cloud_velocity_is_exact_for_a_slide_at_constant_deceleration():
+    """The velocity at a push's first cloud from the onset's velocity and the pose's change since it: exact while
+    speed and spin fall at constant rates."""
+    v0, w0, a, alpha, tau = np.array([0.6, -0.3, 0.0]), np.array([0.0, 0.0, 2.5]), 4.0, 9.0, 0.05
+    d = v0 / np.linalg.norm(v0)
+    p0, q0 = np.array([0.1, 0.2, 0.03]), Rotation.from_euler("z", 0.4).as_quat()
+    p = p0 + v0 * tau - 0.5 * a * tau * tau * d
+    q = (Rotation.from_rotvec([0.0, 0.0, w0[2] * tau - 0.5 * alpha * tau * tau]) * Rotation.from_quat(q0)).as_quat()
+    lin, ang = first_cloud_velocity(tau, p0, q0, v0, w0, p, q)
+    assert lin == pytest.approx(v0 - a * tau * d, abs=1e-9)
+    assert ang == pytest.approx([0.0, 0.0, w0[2] - alpha * tau], abs=1e-9)
+    with pytest.raises(ValueError, match="after the onset"):
+        first_cloud_velocity(0.0, p0, q0, v0, w0, p, q)

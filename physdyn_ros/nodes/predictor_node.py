@@ -172,6 +172,7 @@ class PredictorNode(ManagedNode):
         self._latest_feature_id: str | None = None
         self._states: dict[str, deque[ObjectState]] = {}
         self._observed: dict[str, deque[ObjectState]] = {}
+        self._perception = False  # state_source perception, as read on activate
         self._pending: list[PendingRefinement] = []
         self._parked: list[ParkedTwist] = []
         self.predictions = 0
@@ -219,7 +220,8 @@ class PredictorNode(ManagedNode):
     def activate(self) -> None:
         self.active_subscription(ShapeFeature, "shape_feature", self._on_feature, FEATURE_QOS,
                                  callback_group=self._data)
-        if self._param("state_source") == "perception":  # the tracker's states alone: no ground truth is read
+        self._perception = self._param("state_source") == "perception"  # read once: the subscriptions match it
+        if self._perception:  # the tracker's states alone: no ground truth is read
             self.active_subscription(ObjectState, "tracked_state", self._on_tracked, STATE_QOS,
                                      callback_group=self._data)
             self.active_subscription(ObjectState, "initial_state", self._on_initial_state, STATE_QOS,
@@ -523,11 +525,13 @@ class PredictorNode(ManagedNode):
         if self._pending:
             refine(self)
 
-    def observed(self, states: list[ObjectState]):
-        """Observed ObjectStates of frames 1..K after the push -> the Predictor's `observed` argument."""
+    def observed(self, states: list[ObjectState], onset: PendingRefinement | None = None):
+        """Observed ObjectStates of frames 1..K after the push -> the Predictor's `observed` argument (onset: the
+        push's PendingRefinement, with state_source perception: the tracker's first state gets its velocity from
+        the onset, requests.observed_steps)."""
         for st in states:
             self.check_frame(st.header.frame_id, "observed state")
-        return observed_steps(states)
+        return observed_steps(states, onset if self._perception else None)
 
     # --------------------------------------------------------------------------------------- service helpers
     def request_shape(self, req, stamp_ns: int | None):

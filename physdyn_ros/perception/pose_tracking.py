@@ -223,6 +223,22 @@ def _line_velocity(ts: np.ndarray, values: np.ndarray) -> np.ndarray:
     return (tc @ (values - values.mean(axis=0))) / den if den > 0 else np.zeros(values.shape[1])
 
 
+def first_cloud_velocity(tau: float, start_position: np.ndarray, start_orientation: np.ndarray,
+                         start_lin: np.ndarray, start_ang: np.ndarray, position: np.ndarray,
+                         orientation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear and angular velocity (3,) at a push's first cloud after its onset, tau s after it, from the pose's
+    change since the onset (position (3,), orientation x, y, z, w) and the onset's velocity. The tracker's twist
+    there runs through one pose of the push and the rest pose before it, which read its mean since the rest cloud,
+    not its velocity at the stamp; under constant deceleration the mean since the onset is the average of the two
+    velocities."""
+    if not tau > 0:
+        raise ValueError(f"the first cloud must come after the onset, got {tau:g} s")
+    lin = 2.0 * (np.asarray(position, dtype=np.float64) - start_position) / tau - start_lin
+    lin[2] = 0.0  # the slide is along the table
+    turn = (Rotation.from_quat(orientation) * Rotation.from_quat(start_orientation).inv()).as_rotvec()
+    return lin, 2.0 * turn / tau - np.asarray(start_ang, dtype=np.float64)
+
+
 def _slide(tau: np.ndarray, v0: float, a: float) -> np.ndarray:
     """Distance slid tau s after the onset at speed v0 decelerating at a (stopped at v0 / a); 0 before."""
     tau = np.clip(tau, 0.0, v0 / a if a > 0 else np.inf)

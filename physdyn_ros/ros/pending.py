@@ -70,7 +70,7 @@ def refine(node: Any) -> None:
                            "push; refinement stopped")
             continue
         try:
-            observed = node.observed(obs)
+            observed = node.observed(obs, p)
             traj = node.predictor.rollout(node.shape_code(p.feature), p.lin_vel, p.ang_vel, horizon=node.horizon(),
                                           position=p.position, orientation=p.orientation, observed=observed,
                                           spread=bool(node._param("rest_spread")))

@@ -18,7 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .convert import pose_to_numpy, twist_to_numpy, xyz_to_numpy
+from .convert import pose_to_numpy, time_to_ns, twist_to_numpy, xyz_to_numpy
 
 #: kg/m^3: the densities a pushed object can have (expanded polystyrene ~10, tungsten ~19,300); a request's
 #: mass is checked against the cloud's hull volume with them.
@@ -117,8 +117,12 @@ def check_mass(mass: float, shape) -> None:
                            f"gives a density of {density:.3g} kg/m^3 (expected {low:g}-{MAX_DENSITY:g})")
 
 
-def observed_steps(states: Sequence[Any]):
-    """Observed ObjectStates of frames 1..K after a push -> the Predictor's `observed` argument."""
+def observed_steps(states: Sequence[Any], onset: Any = None):
+    """Observed ObjectStates of frames 1..K after a push -> the Predictor's `observed` argument. onset: the push's
+    start as the perception node tracks it (t0_ns, position, orientation, lin_vel, ang_vel: a PendingRefinement):
+    the first state's velocity then comes from its pose's change since the onset
+    (pose_tracking.first_cloud_velocity), not from the tracker's twist there."""
+    from ..perception.pose_tracking import first_cloud_velocity
     from ..predictor import Observed
 
     pos, quat, lin, ang = [], [], [], []
@@ -130,6 +134,13 @@ def observed_steps(states: Sequence[Any]):
         v, w = twist_to_numpy(s.twist)
         if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
             raise RequestError("observed state velocity is not finite")
+        if onset is not None and not pos:
+            tau = 1e-9 * (time_to_ns(s.header.stamp) - onset.t0_ns)
+            try:
+                v, w = first_cloud_velocity(tau, onset.position, onset.orientation, onset.lin_vel, onset.ang_vel,
+                                            p, q)
+            except ValueError as exc:
+                raise RequestError(f"observed state: {exc}") from None
         pos.append(p)
         quat.append(q)
         lin.append(v)
