@@ -21,7 +21,8 @@ the sim's depth camera (sim/camera.py, the sim node's default eye and target) ev
 cloud goes through the perception node's own processing (PerceptionNode.process: segmentation, features, tracking),
 as the node does on `cloud`, with the perception settings of config/state_source_perception.yaml (what
 `physdyn up --state-source perception` runs). After --rest-seconds at rest, --pushes pushes by id, one every 3 s,
-each a random initial velocity (0.3-1.2 m/s along the table, spin up to 3 rad/s) of a random object, drawn so that
+each a random initial velocity (0.3-1.2 m/s along the table, spin up to 3 rad/s; set at a random instant between
+two clouds) of a random object, drawn so that
 its slide keeps clear of the other objects and ends in view (collisions would be pushes the bench did not make).
 Track ids are matched to the sim's ids on the first cloud (nearest position). Figures:
   * tracked position error (tracked COM estimate vs the true COM), at rest and moving (true speed > 2 cm/s),
@@ -332,6 +333,7 @@ def main() -> int:
     rclpy.init()
     rng = np.random.default_rng(args.seed)
     noise_rng = np.random.default_rng([args.seed, 1])  # its own stream: the pushes stay those of the exact run
+    phase_rng = np.random.default_rng([args.seed, 2])
     # the perception node as `physdyn up --state-source perception` runs it (its overlay's perception settings)
     overlay = parse_overrides("perception", state_source_overlay("perception").get("perception", []))
     node = PerceptionNode(parameter_overrides=[Parameter("single_object", value=False),
@@ -364,7 +366,13 @@ def main() -> int:
             if k >= rest_frames and (k - rest_frames) % FRAMES_PER_PUSH == 0 and len(pushes) < args.pushes:
                 oid, v = free_push(sim, rng, radii)
                 w = np.array([0.0, 0.0, float(rng.uniform(-3.0, 3.0))])
+                # a push at any instant between two clouds: `lead` physics steps before this one
+                lead = int(phase_rng.integers(0, sim.config.substeps))
+                for _ in range(sim.config.substeps - lead):
+                    sim.client.stepSimulation()
                 sim.set_velocity(v, w, oid)
+                for _ in range(lead):
+                    sim.client.stepSimulation()
                 pushes.append({"frame": k, "id": oid, "v": v, "w": w})
             elif k:
                 sim.step()

@@ -131,6 +131,14 @@ def test_the_states_of_a_push_carry_its_speed_at_their_instant():
         assert abs(float(np.linalg.norm(v[:2])) - true) < 0.2 * v0, (t, np.linalg.norm(v[:2]), true)
 
 
+def test_an_object_moved_at_constant_speed_keeps_its_twist():
+    """A robot that keeps pushing moves the object at constant speed: its twist is that speed, not a slide's
+    (the pusher detects rest from the twist)."""
+    run = Run(frames=int(1.0 * RATE) + 8, v0=0.3, a=0.01, t_push=1.0, heading=0.3)
+    moving = [float(np.linalg.norm(v[:2])) for t, v in run.twists if t > 1.0 + 1.5 / RATE]
+    assert len(moving) >= 6 and all(abs(v - 0.3) < 0.03 for v in moving), moving
+
+
 def test_ids_and_poses_survive_a_30_cm_slide_and_a_90_degree_turn():
     # 30 cm: v0^2 / (2 a) = 0.3 with a = 2.4 m/s^2 (a slippery object); the spin turns it by 90 deg meanwhile
     v0, a = 1.2, 2.4
@@ -391,5 +399,8 @@ def test_first_cloud_velocity_is_exact_for_a_slide_at_constant_deceleration():
     lin, ang = first_cloud_velocity(tau, p0, q0, v0, w0, p, q)
     assert lin == pytest.approx(v0 - a * tau * d, abs=1e-9)
     assert ang == pytest.approx([0.0, 0.0, w0[2] - alpha * tau], abs=1e-9)
+    # stopped before the cloud: at rest, not moving back
+    lin, ang = first_cloud_velocity(0.3, p0, q0, v0, w0, p, q)
+    assert not lin.any() and not ang.any()
     with pytest.raises(ValueError, match="after the onset"):
         first_cloud_velocity(0.0, p0, q0, v0, w0, p, q)

@@ -171,8 +171,7 @@ class PerceptionNode(ManagedNode):
         declare(self, "track_onset_frames", t.onset_frames, "moving clouds before a push's initial state is "
                 "fitted and published", low=1, high=30)
         declare(self, "track_deceleration", t.deceleration, "m/s^2, the sliding deceleration (friction mu g) "
-                "assumed when too few clouds of a push fix it, and by which a moving object's twist (a line through "
-                "its last poses) is brought to the newest pose's instant", low=0.01, high=100.0)
+                "assumed when too few clouds of a push fix it", low=0.01, high=100.0)
         declare(self, "track_max_gap", t.max_gap, "s without a pose (no cloud, or clouds the model explains too "
                 "little of) after which a track's motion history is dropped and the pose it is seen at next is its "
                 "rest pose (no push is inferred across the gap)", low=0.01, high=3600.0)

@@ -30,10 +30,11 @@ Per tracked object (its id from tracking.Tracker):
   keeps the track but reports low confidence and the reason; a fit that explains the cloud no better than the
   last pose keeps that pose; the points of a fit close to its guess (the pose held, or the motion predicted)
   that fit well and lie off the model grow it;
-* twist: a least-squares line through the last `window` poses of the push (positions, and rotation vectors
-  relative to the newest orientation) within `window_time`, slowed by `deceleration` from the poses' mean time to
-  the newest one's (a slide slows by about 0.3 m/s within the window); zero-mean sensor noise averages out; at
-  rest it is zero. The predictor refines a push's prediction with these states;
+* twist: from the last `window` poses of the push (positions, and rotation vectors relative to the newest
+  orientation) within `window_time`: a least-squares parabola's slope at the newest pose (a line's would be the
+  mean over the window, which a slide at 15 Hz outruns by up to 0.5 m/s), a line's through two; its first cloud's
+  line runs through the rest pose before it. Zero-mean sensor noise averages out; at rest it is zero. The
+  predictor refines a push's prediction with these states;
 * onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
   rest pose; the first cloud beyond that opens a push. Once `onset_frames` moving clouds are in (or the object
   rests again) and the pose has left the rest pose by twice the threshold (CONFIRM; else, within CONFIRM_FRAMES
@@ -230,13 +231,24 @@ def first_cloud_velocity(tau: float, start_position: np.ndarray, start_orientati
     change since the onset (position (3,), orientation x, y, z, w) and the onset's velocity. The tracker's twist
     there runs through one pose of the push and the rest pose before it, which read its mean since the rest cloud,
     not its velocity at the stamp; under constant deceleration the mean since the onset is the average of the two
-    velocities."""
+    velocities. A velocity against the onset's (the slide stopped before the cloud) is zero."""
     if not tau > 0:
         raise ValueError(f"the first cloud must come after the onset, got {tau:g} s")
     lin = 2.0 * (np.asarray(position, dtype=np.float64) - start_position) / tau - start_lin
     lin[2] = 0.0  # the slide is along the table
     turn = (Rotation.from_quat(orientation) * Rotation.from_quat(start_orientation).inv()).as_rotvec()
-    return lin, 2.0 * turn / tau - np.asarray(start_ang, dtype=np.float64)
+    ang = 2.0 * turn / tau - np.asarray(start_ang, dtype=np.float64)
+    # a slide that stopped before the cloud (or a pose the cloud did not move) would read a reversed velocity
+    return (lin if float(lin @ start_lin) > 0.0 else np.zeros(3)), (ang if float(ang @ start_ang) > 0.0
+                                                                   else np.zeros(3))
+
+
+def _end_velocity(ts: np.ndarray, values: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """Velocity (per s) at the newest of ts of least-squares parabolas through values (n, d), n >= 3; a component
+    against the line's `slope` is 0."""
+    tc = ts - ts[-1]
+    coef = np.linalg.lstsq(np.stack([np.ones_like(tc), tc, tc * tc], axis=1), values, rcond=None)[0]
+    return np.where(coef[1] * slope > 0.0, coef[1], 0.0)
 
 
 def _slide(tau: np.ndarray, v0: float, a: float) -> np.ndarray:
@@ -461,9 +473,9 @@ class PoseTracker:
         track.rest_position = track.rest_position + track.rest_rotation @ offset
 
     def _twist(self, track: PoseTrack, at_newest: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Line fit through the recent poses (see the module docstring); zero at rest or with one pose. at_newest
-        (the published twist): the push's own poses only, brought to the newest one's instant; False: the mean
-        motion of the recent poses (the registration's constant-velocity guess)."""
+        """Fit through the recent poses (see the module docstring); zero at rest or with one pose. at_newest (the
+        published twist): the push's own poses only, at the newest one's instant; False: the mean motion of the
+        recent poses, a line (the registration's constant-velocity guess)."""
         cfg = self.config
         hist = [h for h in list(track.history)[-cfg.window:] if h[0] >= track.t - cfg.window_time]
         if not track.moving:
@@ -480,13 +492,10 @@ class PoseTracker:
         ref = hist[-1][2]
         rv = np.array([Rotation.from_matrix(h[2] @ ref.T).as_rotvec() for h in hist])
         lin, ang = _line_velocity(ts, pos), _line_velocity(ts, rv)
-        # the slope is the velocity at the poses' mean time: since then a sliding object slowed by `deceleration`
-        # (speed and spin in proportion, as friction shares them). Through the rest pose the slope is already low:
-        # the push started between the two clouds.
-        speed = float(np.linalg.norm(lin[:2]))
-        lag = float(ts[-1] - ts.mean()) if own else 0.0
-        scale = max(0.0, 1.0 - cfg.deceleration * lag / speed) if speed > 0 else 1.0
-        return scale * lin, scale * ang
+        if own and len(ts) >= 3:  # a line's slope is the velocity at the poses' mean time: a parabola's at the
+            # newest pose's, where a slide has slowed since; not reversed (a slide that stopped within the window)
+            lin, ang = _end_velocity(ts, pos, lin), _end_velocity(ts, rv, ang)
+        return lin, ang
 
     def _onset(self, track: PoseTrack) -> TrackedState | None:
         cfg = self.config
