@@ -27,8 +27,9 @@ its slide keeps clear of the other objects and ends in view (collisions would be
 Track ids are matched to the sim's ids on the first cloud (nearest position). Figures:
   * tracked position error (tracked COM estimate vs the true COM), at rest and moving (true speed > 2 cm/s),
     median and p90; orientation error of the rotation since the first cloud (tracked vs true), median;
-  * onsets: the share of pushes with an initial_state of the pushed object's track within 5 frames, the delay
-    (frames from the push to the onset's stamp, median), false onsets (an initial_state with no push while the
+  * onsets: the share of pushes with an initial_state of the pushed object's track stamped from 1 frame before to
+    5 frames after the push's true instant, the delay (frames from that instant to the onset's stamp, median),
+    false onsets (an initial_state with no push while the
     sim's object stood still), at rest and in all, and onsets of objects the sim moved without a push
     (onsets_unpushed_motion: a collision, or a slide's end seen as a second push); initial speed error
     (relative) and spin error (rad/s) against the velocity the push set, median;
@@ -94,6 +95,13 @@ def frame_of(state) -> int:
     from physdyn_ros.ros.convert import time_to_ns
 
     return round((time_to_ns(state.header.stamp) - 10**9) / DT_NS)
+
+
+def late(state, push: dict) -> float:
+    """Frames from a push's true instant to an ObjectState's stamp (its onset estimate)."""
+    from physdyn_ros.ros.convert import time_to_ns
+
+    return (time_to_ns(state.header.stamp) - push["t_ns"]) / DT_NS
 
 
 def free_push(sim, rng: np.random.Generator, radii: dict[str, float]) -> tuple[str, np.ndarray]:
@@ -373,7 +381,8 @@ def main() -> int:
                 sim.set_velocity(v, w, oid)
                 for _ in range(lead):
                     sim.client.stepSimulation()
-                pushes.append({"frame": k, "id": oid, "v": v, "w": w})
+                pushes.append({"frame": k, "id": oid, "v": v, "w": w,
+                               "t_ns": 10**9 + k * DT_NS - lead * DT_NS // sim.config.substeps})
             elif k:
                 sim.step()
             truth.append({oid: tuple(np.asarray(a, float) for a in s) for oid, s in sim.states().items()})
@@ -414,7 +423,7 @@ def main() -> int:
     for n, p in enumerate(pushes):
         tid = inverse.get(p["id"])
         hits = [(i, (k, s)) for i, (k, s) in enumerate(onsets) if s.object_id == tid and i not in used
-                and p["frame"] - 1 <= frame_of(s) <= p["frame"] + 5]
+                and -1.0 <= late(s, p) <= 5.0]
         end = min(p["frame"] + FRAMES_PER_PUSH - 1, frames - 1)
         rest_pos = truth[end][p["id"]][0]
         # judged on the push window's last cloud that shows every object (one cloud may miss a sparse object)
@@ -434,7 +443,7 @@ def main() -> int:
         i, (k_on, s) = hits[0]
         used.add(i)
         detected.append(True)
-        delays.append(frame_of(s) - p["frame"])
+        delays.append(late(s, p))
         v_est = xyz(s.twist.linear)
         speed_err.append(abs(np.linalg.norm(v_est[:2]) - np.linalg.norm(p["v"][:2])) / np.linalg.norm(p["v"][:2]))
         spin_err.append(float(np.linalg.norm(xyz(s.twist.angular) - p["w"])))

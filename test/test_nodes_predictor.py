@@ -179,8 +179,9 @@ def test_steps_in_refines_with_observed_states(rclpy_init, predictor):
     assert [t.steps_in for t in c.trajs] == [0, 1, 2, 3]
     refined = next(t for t in c.trajs if t.steps_in == 3)
     assert time_to_ns(refined.header.stamp) == T0 and len(refined.states) == 31
-    # observed frames keep their observed poses
+    # observed frames keep their observed poses, and (state_source sim) their twists as given
     assert [s.pose.position.x for s in refined.states[1:4]] == pytest.approx([0.22, 0.24, 0.26])
+    assert [s.twist.linear.x for s in refined.states[1:4]] == [0.0, 0.0, 0.0]
 
 
 def request(**kw) -> PredictTrajectory.Request:

@@ -126,9 +126,11 @@ def test_the_states_of_a_push_carry_its_speed_at_their_instant():
     run = Run(frames=int((t_push + v0 / a) * RATE) + 4, v0=v0, a=a, t_push=t_push, heading=0.3)
     states = [(t, v) for t, v in run.twists if t >= t_push + 0.5 / RATE]
     assert len(states) >= 4, [t for t, _ in run.twists]
+    heading = np.array([math.cos(0.3), math.sin(0.3)])
     for t, v in states:
         true = max(0.0, v0 - a * (t - t_push))
         assert abs(float(np.linalg.norm(v[:2])) - true) < 0.2 * v0, (t, np.linalg.norm(v[:2]), true)
+        assert float(v[:2] @ heading) >= 0.0, (t, v)  # a slide that stopped within the window is not reversed
 
 
 def test_an_object_moved_at_constant_speed_keeps_its_twist():

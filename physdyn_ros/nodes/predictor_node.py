@@ -126,7 +126,8 @@ class PredictorNode(ManagedNode):
         declare(self, "max_vertical_speed", MAX_VERTICAL_SPEED, "initial |v_z| above this (m/s) is rejected: the "
                 "model was trained on pushes along the table (impulses at most 10 degrees off the horizontal), "
                 "not on launches or objects driven into the table", low=0.0)
-        declare(self, "steps_in", 0, "observed states (observed_state topic) after the push to feed the model "
+        declare(self, "steps_in", 0, "observed states (observed_state topic; state_source perception: "
+                "tracked_state) after the push to feed the model "
                 "before it predicts on its own; > 0 publishes a corrected trajectory for each observed state, up to "
                 "steps_in", low=0)
         declare(self, "box_every", 10, "a CUBE marker every this many steps (and at the last)", low=1)

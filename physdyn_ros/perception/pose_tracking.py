@@ -31,10 +31,10 @@ Per tracked object (its id from tracking.Tracker):
   last pose keeps that pose; the points of a fit close to its guess (the pose held, or the motion predicted)
   that fit well and lie off the model grow it;
 * twist: from the last `window` poses of the push (positions, and rotation vectors relative to the newest
-  orientation) within `window_time`: a least-squares parabola's slope at the newest pose (a line's would be the
-  mean over the window, which a slide at 15 Hz outruns by up to 0.5 m/s), a line's through two; its first cloud's
-  line runs through the rest pose before it. Zero-mean sensor noise averages out; at rest it is zero. The
-  predictor refines a push's prediction with these states;
+  orientation) within `window_time`: a least-squares line, with the speed along it and the yaw rate from a
+  parabola's slope at the newest pose (the line's is the mean over the window, which a slide at 15 Hz outruns by
+  up to 0.5 m/s); a line's through two; its first cloud's line runs through the rest pose before it. Zero-mean
+  sensor noise averages out; at rest it is zero. The predictor refines a push's prediction with these states;
 * onset (rest -> moving): the object is at rest while its pose stays within `onset_distance` / `onset_angle` of its
   rest pose; the first cloud beyond that opens a push. Once `onset_frames` moving clouds are in (or the object
   rests again) and the pose has left the rest pose by twice the threshold (CONFIRM; else, within CONFIRM_FRAMES
@@ -76,7 +76,7 @@ TOP_SPAN = 0.7
 class PoseConfig:
     """Pose-tracking settings (the perception node's track_* parameters)."""
 
-    window: int = 4  # poses of the twist's line fit
+    window: int = 4  # poses of the twist's fit
     window_time: float = 0.5  # s: older poses are not part of the fit
     icp_points: int = 200  # observed points registered per object (a random subset)
     icp_iterations: int = 10
@@ -227,13 +227,13 @@ def _line_velocity(ts: np.ndarray, values: np.ndarray) -> np.ndarray:
 def first_cloud_velocity(tau: float, start_position: np.ndarray, start_orientation: np.ndarray,
                          start_lin: np.ndarray, start_ang: np.ndarray, position: np.ndarray,
                          orientation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear and angular velocity (3,) at a push's first cloud after its onset, tau s after it, from the pose's
-    change since the onset (position (3,), orientation x, y, z, w) and the onset's velocity. The tracker's twist
-    there runs through one pose of the push and the rest pose before it, which read its mean since the rest cloud,
-    not its velocity at the stamp; under constant deceleration the mean since the onset is the average of the two
-    velocities. A velocity against the onset's (the slide stopped before the cloud) is zero."""
+    """Linear and angular velocity (3,) at a push's first observed state, tau s after its onset, from the pose's
+    change since the onset (position (3,), orientation x, y, z, w) and the onset's velocity. At a push's first
+    cloud the tracker's twist runs through one pose of the push and the rest pose before it: its mean since the
+    rest cloud, not its velocity at the stamp; under constant deceleration the mean since the onset is the average
+    of the two velocities. A velocity against the onset's (the slide stopped before the cloud) is zero."""
     if not tau > 0:
-        raise ValueError(f"the first cloud must come after the onset, got {tau:g} s")
+        raise ValueError(f"the observed state must come after the onset, got {tau:g} s")
     lin = 2.0 * (np.asarray(position, dtype=np.float64) - start_position) / tau - start_lin
     lin[2] = 0.0  # the slide is along the table
     turn = (Rotation.from_quat(orientation) * Rotation.from_quat(start_orientation).inv()).as_rotvec()
@@ -243,12 +243,12 @@ def first_cloud_velocity(tau: float, start_position: np.ndarray, start_orientati
                                                                    else np.zeros(3))
 
 
-def _end_velocity(ts: np.ndarray, values: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    """Velocity (per s) at the newest of ts of least-squares parabolas through values (n, d), n >= 3; a component
-    against the line's `slope` is 0."""
+def _end_rate(ts: np.ndarray, values: np.ndarray, line_rate: float) -> float:
+    """Rate (per s) at the newest of ts of a least-squares parabola through values (n,), n >= 3; 0 where it runs
+    against the line's rate (a slide that stopped within the window)."""
     tc = ts - ts[-1]
-    coef = np.linalg.lstsq(np.stack([np.ones_like(tc), tc, tc * tc], axis=1), values, rcond=None)[0]
-    return np.where(coef[1] * slope > 0.0, coef[1], 0.0)
+    rate = float(np.linalg.lstsq(np.stack([np.ones_like(tc), tc, tc * tc], axis=1), values, rcond=None)[0][1])
+    return rate if rate * line_rate > 0.0 else 0.0
 
 
 def _slide(tau: np.ndarray, v0: float, a: float) -> np.ndarray:
@@ -492,9 +492,14 @@ class PoseTracker:
         ref = hist[-1][2]
         rv = np.array([Rotation.from_matrix(h[2] @ ref.T).as_rotvec() for h in hist])
         lin, ang = _line_velocity(ts, pos), _line_velocity(ts, rv)
-        if own and len(ts) >= 3:  # a line's slope is the velocity at the poses' mean time: a parabola's at the
-            # newest pose's, where a slide has slowed since; not reversed (a slide that stopped within the window)
-            lin, ang = _end_velocity(ts, pos, lin), _end_velocity(ts, rv, ang)
+        if own and len(ts) >= 3:  # a line's slope is the velocity at the poses' mean time, a parabola's at the
+            # newest pose's, where a slide has slowed since: the speed along the line's direction and the yaw rate
+            # (a parabola amplifies the poses' noise: the direction and the tilt rates stay the line's)
+            speed = float(np.linalg.norm(lin[:2]))
+            if speed > 0.0:
+                u = lin[:2] / speed
+                lin = np.array([*(u * _end_rate(ts, pos[:, :2] @ u, speed)), lin[2]])
+            ang = np.array([ang[0], ang[1], _end_rate(ts, rv[:, 2], float(ang[2]))])
         return lin, ang
 
     def _onset(self, track: PoseTrack) -> TrackedState | None:
