@@ -330,7 +330,7 @@ def main() -> int:
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.ros.cloud import cloud_to_xyz, xyz_to_cloud
     from physdyn_ros.ros.convert import ns_to_time, time_to_ns
-    from physdyn_ros.ros.pending import PendingRefinement
+    from physdyn_ros.ros.pending import PendingRefinement, states_after
     from physdyn_ros.ros.requests import observed_steps
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
@@ -455,8 +455,8 @@ def main() -> int:
         # the tracked states after the onset, as the predictor node refines with them (ros/pending.refine)
         t_on = time_to_ns(s.header.stamp)
         f_on = max(frame_of(s), 0)  # states published before the onset was (detection delay) count too
-        after = [tracked[j][tid] for j in range(f_on, min(f_on + steps_in + 2, frames)) if tid in tracked[j]]
-        after = [a for a in after if time_to_ns(a.header.stamp) >= t_on + DT_NS // 2][:steps_in]
+        after = states_after([tracked[j][tid] for j in range(f_on, min(f_on + steps_in + 2, frames))
+                              if tid in tracked[j]], t_on, DT_NS, steps_in)
         onset = PendingRefinement(tid, t_on, xyz(s.pose.position), quat(s), v_est, xyz(s.twist.angular), feat, 0.0)
         est = predictor.rollout(code, v_est, xyz(s.twist.angular), 60, position=xyz(s.pose.position),
                                 orientation=quat(s), observed=observed_steps(after, onset) if after else None)

@@ -50,6 +50,12 @@ class PendingRefinement:
     published: int = 0  # observed states used by the last re-prediction published
 
 
+def states_after(states: Any, t0_ns: int, dt_ns: int, k: int) -> list:
+    """The first k of `states` (ObjectStates in stamp order) stamped at least half a step after t0_ns: the
+    observed frames 1..k of a push at t0_ns."""
+    return [s for s in states if t0_ns + dt_ns // 2 <= time_to_ns(s.header.stamp)][:k]
+
+
 def refine(node: Any) -> None:
     """Re-predict the node's pending pushes (PredictorNode._pending) as observed states arrive: one corrected
     trajectory per new observed state, fed as "steps in", until `steps_in` states have been used; a push whose
@@ -59,9 +65,7 @@ def refine(node: Any) -> None:
     keep = []
     for p in node._pending:
         with node._lock:
-            obs = [s for s in node._observed.get(p.object_id, ())
-                   if p.t0_ns + dt_ns // 2 <= time_to_ns(s.header.stamp)]
-        obs = obs[:steps_in]
+            obs = states_after(node._observed.get(p.object_id, ()), p.t0_ns, dt_ns, steps_in)
         if len(obs) <= p.published:
             if time.monotonic() < p.deadline:
                 keep.append(p)
