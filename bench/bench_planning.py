@@ -15,7 +15,7 @@
 """Push planning on unseen shapes in pybullet: success of single pushes and of closed-loop re-planning.
 
     .venv/bin/python bench/bench_planning.py [--model PATH] [--trials 42] [--max-pushes 3] [--budget 0.2]
-                                             [--skip-pybullet] [--skip-oracle]
+                                             [--skip-pybullet] [--skip-oracle] [--view 0|1]
 
 Trials cycle through three groups of shapes no model was trained on:
   procedural: the paper's six categories and the trained families (physdyn_ros.shapes.families) at shape
@@ -66,6 +66,10 @@ TRAINED_FAMILIES = ["superellipsoid", "capsule", "prism", "pyramid", "wedge", "p
                     "letter", "stack", "composite", "gear"]
 HELD_OUT = ["ring", "dumbbell", "legged"]
 GROUPS = ("procedural", "held_out", "pybullet_data")
+#: --view: one depth camera per trial, this far above the table plane (rad; the suite's sim camera looks down 29
+#: deg), at an azimuth of its own, with Gaussian noise of this std (m) on the points.
+VIEW_ELEVATION = math.radians(30.0)
+VIEW_NOISE = 0.002
 
 
 def trials(n: int, seed: int) -> list[dict]:
@@ -83,9 +87,13 @@ def trials(n: int, seed: int) -> list[dict]:
             cat, shape_seed = "pybullet_data", k
         yaw0 = float(rng.uniform(-math.pi, math.pi))
         d, bearing = float(rng.uniform(0.08, 0.22)), float(rng.uniform(-math.pi, math.pi))
+        # the camera of --view: its own stream, so the trials are the same with and without it
+        az = float(np.random.default_rng([seed, i]).uniform(-math.pi, math.pi))
         out.append({"group": group, "category": cat, "shape_seed": shape_seed, "yaw0": yaw0,
                     "goal": (d * math.cos(bearing), d * math.sin(bearing),
-                             yaw0 + float(rng.uniform(-math.pi / 4, math.pi / 4)))})
+                             yaw0 + float(rng.uniform(-math.pi / 4, math.pi / 4))),
+                    "camera": (math.cos(VIEW_ELEVATION) * math.cos(az), math.cos(VIEW_ELEVATION) * math.sin(az),
+                               math.sin(VIEW_ELEVATION))})
     return out
 
 
@@ -101,9 +109,10 @@ def surface_distance(sim, point: np.ndarray, pose_pos: np.ndarray, pose_quat: np
 
 def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, friction: float,
         max_topple: float, robust: int = 6, adapt: bool = True, iterations: int = 0, risk: dict | None = None,
-        ensemble: tuple = ()) -> dict:
+        ensemble: tuple = (), view: bool = False) -> dict:
     """The closed loop over every case; `model` a DynamicsModel, or "oracle" for the true simulator; `ensemble`:
-    further members for the learned planner's robustness check."""
+    further members for the learned planner's robustness check; `view`: the planner sees each trial's camera's
+    view with VIEW_NOISE."""
     from physdyn_ros.planning import Goal, PlannerConfig, Pose2D, PushPlanner
     from physdyn_ros.planning import closed_loop
     from physdyn_ros.planning.sim_model import ExactSimModel, PybulletModel
@@ -147,7 +156,10 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                     if sim_ok:
                         break
                 goal = Goal(Pose2D(*c["goal"]), 0.02, math.radians(10.0))
-                res = closed_loop.push_to_goal(sim, planner, goal, max_pushes=max_pushes, mass=sim.mass, adapt=adapt)
+                seen = {"view": np.array(c["camera"]), "cloud_noise": VIEW_NOISE,
+                        "rng": np.random.default_rng(c["shape_seed"])} if view else {}
+                res = closed_loop.push_to_goal(sim, planner, goal, max_pushes=max_pushes, mass=sim.mass, adapt=adapt,
+                                               **seen)
                 times += res.planning_times
                 p1 = res.pushes[0] if res.pushes else None
                 first = bool(p1 and not p1.toppled and p1.position_error <= 0.02
@@ -230,7 +242,11 @@ def main() -> int:
     ap.add_argument("--physics-check", type=int, choices=(0, 1), default=1,
                     help="learned planner physics_check: re-simulate its finalists on the cloud's hull (default 1)")
     ap.add_argument("--whole-cloud", type=int, choices=(0, 1), default=1,
-                    help="planner whole_cloud: 1 the physics check weighs the solid the cloud encloses, 0 its hull")
+                    help="planner whole_cloud: 1 the physics check weighs the solid the cloud encloses, 0 the "
+                         "clouds are taken as one camera's views and closed (shapes.solid.complete_view)")
+    ap.add_argument("--view", type=int, choices=(0, 1), default=0,
+                    help="1: the learned planner sees one depth camera's view per trial (30 deg up, 2 mm noise) and "
+                         "plans with whole_cloud false; the oracle keeps the whole cloud")
     ap.add_argument("--physics-fusion", type=int, choices=(0, 1), default=1,
                     help="planner physics_fusion: 1 the physics check's verdict is the model's topple fusion "
                          "(whole clouds, a checkpoint with fusion weights), 0 the share of toppled runs")
@@ -260,7 +276,7 @@ def main() -> int:
     cases = trials(args.trials, args.seed)
     risk = {} if args.pessimistic is None else {"pessimistic": bool(args.pessimistic)}
     risk["physics_check"] = bool(args.physics_check)
-    risk["whole_cloud"] = bool(args.whole_cloud)
+    risk["whole_cloud"] = bool(args.whole_cloud) and not args.view
     risk["physics_fusion"] = bool(args.physics_fusion)
     try:
         members = ensemble_paths(args.ensemble, args.model or "")
@@ -269,7 +285,7 @@ def main() -> int:
     ensemble = tuple(Predictor.load(m, threads=args.threads) for m in members)
     results = [run(Predictor.load(args.model, threads=args.threads), "learned", cases, args.max_pushes, args.budget,
                    args.friction, args.max_topple, args.robust_candidates, not args.no_adapt, args.iterations, risk,
-                   ensemble)]
+                   ensemble, bool(args.view))]
     oracle = None
     if not args.skip_oracle:
         oracle = run("oracle", "oracle (true simulator)", cases, args.max_pushes, args.budget, args.friction,
@@ -322,6 +338,7 @@ def main() -> int:
            "contact_surface_max_mm": round(learned["contact_max_mm"], 3),
            "groups": {g: {k: round(v, 3) for k, v in d.items()} for g, d in learned["groups"].items()},
            "pessimistic": bool(risk.get("pessimistic", False)), "whole_cloud": bool(risk["whole_cloud"]),
+           "view": bool(args.view),
            "physics_fusion": bool(risk["physics_fusion"]), "ensemble": 1 + len(ensemble),
            "yaw_symmetric_trials": sum(r["yaw_symmetry"] not in (None, 1) for r in learned["rows"]),
            "pybullet_success_1push": round(hull["first"], 3) if hull else None,

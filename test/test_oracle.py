@@ -83,3 +83,30 @@ def test_the_oracle_closes_the_loop(sim):
         result = push_to_goal(sim, PushPlanner(model, ORACLE), Goal(Pose2D(0.15, -0.05, 0.5)), max_pushes=2,
                               mass=sim.mass)
     assert result.success, result.message
+
+
+def test_a_camera_sees_one_side_and_the_loop_plans_from_it(sim):
+    """With a view, observe keeps the points a camera in that direction sees (the far side hidden) and the closed
+    loop plans from that cloud: bench_planning's --view, one depth camera as on a real robot."""
+    from physdyn_ros.planning import AnalyticSlidingModel, PlanningError
+    from physdyn_ros.shapes import resolve_shape
+
+    sim.spawn(resolve_shape("box", 3), xy=(0.0, 0.0), yaw=0.2)
+    camera = np.array([math.cos(math.radians(30.0)), 0.0, math.sin(math.radians(30.0))])
+    whole = observe(sim)
+    seen = observe(sim, view=camera).cloud
+    assert 0.2 * len(whole.cloud) < len(seen) < 0.8 * len(whole.cloud)
+    depth = (whole.cloud - whole.position) @ camera  # towards the camera
+    assert np.mean((seen - whole.position) @ camera) > np.mean(depth) + 0.1 * np.ptp(depth)
+    noisy = observe(sim, 0.002, np.random.default_rng(0), view=camera).cloud
+    assert len(noisy) == len(seen) and 0.001 < np.std(noisy - seen) < 0.003
+    clouds = []
+
+    class Recording(PushPlanner):
+        def plan(self, shape, *args, **kwargs):
+            clouds.append(np.asarray(shape))
+            raise PlanningError("recorded")
+
+    result = push_to_goal(sim, Recording(AnalyticSlidingModel(0.5), ORACLE), Goal(Pose2D(0.15, 0.0, 0.0)),
+                          view=camera)
+    assert result.outcome == "refused" and len(clouds) == 1 and np.allclose(clouds[0], seen)

@@ -18,8 +18,9 @@
         result = push_to_goal(sim, planner, Goal(Pose2D(0.2, 0.1, 0.8)), max_pushes=3, mass=sim.mass)
 
 Observation is what a perfect depth tracker would give: the object's pose from the simulator and its cloud
-(the shape's surface samples, scaled, posed at the observed pose). pybullet is needed only because a
-Simulator is passed in; this module imports nothing from it.
+(the shape's surface samples, scaled, posed at the observed pose; with `view`, only those a camera far away in that
+direction sees, as one depth camera's cloud). pybullet is needed only because a Simulator is passed in; this
+module imports nothing from it.
 """
 from __future__ import annotations
 
@@ -74,11 +75,17 @@ class ClosedLoopResult:
         return [p.plan.planning_time for p in self.pushes]
 
 
-def observe(sim: Any, cloud_noise: float = 0.0, rng: Optional[np.random.Generator] = None) -> Observation:
-    """The object's pose and cloud as seen now (cloud_noise: std of Gaussian noise on the points, m)."""
+def observe(sim: Any, cloud_noise: float = 0.0, rng: Optional[np.random.Generator] = None,
+            view: Optional[np.ndarray] = None) -> Observation:
+    """The object's pose and cloud as seen now (cloud_noise: std of Gaussian noise on the points, m; view: (3,)
+    the direction from the object towards a camera far away, table frame: only the points it sees)."""
+    from ..learn.views import visible
+
     pos, quat, _, _ = sim.state()
     pts = np.asarray(sim.shape.points, dtype=np.float64) * np.asarray(sim.scale)
     cloud = geo.quat_rotate(np.broadcast_to(quat, (len(pts), 4)), pts) + pos
+    if view is not None:
+        cloud = cloud[visible(cloud[None], np.asarray(view, dtype=np.float64)[None])[0]]
     if cloud_noise > 0:
         cloud = cloud + (rng or np.random.default_rng()).normal(0.0, cloud_noise, cloud.shape)
     tilt = float(geo.up_tilt_angle(quat))
@@ -116,8 +123,8 @@ def settle(sim: Any, max_frames: int = 450) -> bool:
 
 def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3, mass: Optional[float] = None,
                  mode: str = "impulse", config: Optional[PlannerConfig] = None, cloud_noise: float = 0.0,
-                 rng: Optional[np.random.Generator] = None, num_frames: int = 76, adapt: bool = True
-                 ) -> ClosedLoopResult:
+                 rng: Optional[np.random.Generator] = None, num_frames: int = 76, adapt: bool = True,
+                 view: Optional[np.ndarray] = None) -> ClosedLoopResult:
     """Push the simulator's object towards `goal`, re-planning from where it stopped, up to max_pushes pushes.
 
     The episode's rules are planning.session.PushSession's (the `push_to_goal` action uses the same): stops when
@@ -125,11 +132,11 @@ def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3
     says which. The yaw goal is folded by the symmetry of the first observed cloud (PushSession.observe_shape)
     unless the goal gives its yaw_symmetry or the config's detect_symmetry is off. `mass` is the mass used for
     impulses (default: the planner's estimate); `adapt` aims each push by the observed / predicted slide ratio of
-    the pushes before it.
+    the pushes before it; `view`: the clouds are one camera's, looking from that direction (observe).
     """
     session = PushSession(goal, max_pushes, adapt=adapt)
     result = ClosedLoopResult(success=False)
-    obs = observe(sim, cloud_noise, rng)
+    obs = observe(sim, cloud_noise, rng, view)
     if (config or planner.config).detect_symmetry:
         session.observe_shape(obs.cloud)  # the yaw the first cloud shows: the planner's, the stops' and the result's
     goal = session.goal
@@ -142,7 +149,7 @@ def push_to_goal(sim: Any, planner: PushPlanner, goal: Goal, max_pushes: int = 3
             stop = session.refused(str(exc))
             break
         rec = execute(sim, plan, mode, num_frames)
-        start, obs = obs.pose, observe(sim, cloud_noise, rng)
+        start, obs = obs.pose, observe(sim, cloud_noise, rng, view)
         toppled = bool(rec["topple_index"] >= 0) or obs.toppled
         step = session.record(start, plan.final_pose, obs.pose, toppled)
         result.pushes.append(PushOutcome(plan, obs.pose, step.position_error, step.yaw_error, toppled,
