@@ -22,10 +22,12 @@ hull (whole cloud, true initial state) at the true friction -20 % and +20 % (top
 advance: the mean of the model and the two hull runs, and 0.6 x the model + 0.4 x the hulls' mean. With whole
 clouds also the hull weighing as the solid the cloud encloses (topple_fusion.SolidPhysics, about the solid's own
 centre of mass) at -20 % and +20 %, and the checkpoint's topple fusion (physdyn_ros.topple_fusion: the model and
-those runs, weights fitted on other shapes and stored beside the checkpoint). `--exact-runs K`: the ceiling of any
-predictor fed these initial states, the true shape (the dataset's procedural shapes, rebuilt) re-simulated K times
-with the initial velocities perturbed by 1 % (pushing is chaotic near the topple boundary: a re-run does not always
-repeat the recorded outcome); its topple probability is the share of toppled runs.
+those runs, weights fitted on other shapes and stored beside the checkpoint). With `--partial 1` instead pybullet on
+the convex hull of each view the model saw (what the planner's physics check simulates with whole_cloud false),
+-20 % and +20 %. `--exact-runs K`: the ceiling of any predictor fed these initial states, the true shape (the
+dataset's procedural shapes, rebuilt) re-simulated K times with the initial velocities perturbed by 1 % (pushing is
+chaotic near the topple boundary: a re-run does not always repeat the recorded outcome); its topple probability is
+the share of toppled runs.
 Prints F1 (precision / recall) at 0.5 and the Brier score of each, and the reliability of the model's and the
 fusion's probabilities in five bins (pushes, mean predicted, observed topple frequency); the last line is one JSON
 object {method: {f1, precision, recall, brier[, reliability]}, "pushes": n, "topples": k}.
@@ -82,6 +84,45 @@ def exact_topples(sims, index: np.ndarray, runs: int, horizon: int, noise: float
     return out
 
 
+def view_verdicts(sims, index: np.ndarray, horizon: int, friction_error: float,
+                  num_points: int) -> dict[str, np.ndarray]:
+    """pybullet on the convex hull of one camera's view of each push at uniform density (the views and noise
+    model_rollouts(partial=1) gave a model of `num_points` points: what the planner checks with whole_cloud
+    false), the true initial velocities about the true centre of mass, friction -/+ friction_error. (B,) 1.0 where
+    it toppled, per sign."""
+    from physdyn_ros.learn.evaluate import _batches
+    from physdyn_ros.learn.support import DESCRIPTOR_POINTS
+    from physdyn_ros.learn.windows import sequences
+    from physdyn_ros.shapes.core import shape_from_points
+    from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
+
+    cfg = SimConfig(collision="hull")
+    out = {sign: np.zeros(len(index)) for sign in "-+"}
+    with Simulator(cfg) as sim:
+        for sl in _batches(len(index), 256):  # model_rollouts' batches and view seeds: the model's own views
+            idx = index[sl]
+            seq = sequences(sims, horizon, num_points, idx, 1.0, 0.002, view_seed=sl.start,
+                            desc_points=DESCRIPTOR_POINTS)
+            views, true_com = seq["desc_cloud"].double().numpy(), seq["com"].double().numpy()
+            table = seq["table"].double().numpy()
+            v0, w0 = seq["vel"][:, 0].double().numpy(), seq["angvel"][:, 0].double().numpy()
+            for j, i in enumerate(range(sl.start, sl.stop)):
+                lift = np.array([0.0, 0.0, -table[j]])  # frame C with the table at z = 0
+                view = views[j] + lift
+                try:
+                    c = shape_from_points(view).mass_properties().com
+                    shape = shape_from_points(view - c)
+                except ValueError:
+                    continue  # a flat view: no body, no topple
+                v = v0[j] + np.cross(w0[j], c - (true_com[j] + lift))
+                for sign in "-+":
+                    mu = float(sims.friction[idx[j]]) * (1.0 + (1 if sign == "+" else -1) * friction_error)
+                    rec = simulate_from_state(shape, (1.0, 1.0, 1.0), c, (0.0, 0.0, 0.0, 1.0), v, w0[j],
+                                              friction=mu, num_frames=horizon + 1, config=cfg, sim=sim)
+                    out[sign][i] = float(np.max(rec["toppled"]))
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=None, help="default: the shipped model")
@@ -133,13 +174,16 @@ def main() -> int:
         if fusion_path.is_file():
             weights = topple_fusion.FusionWeights.load(fusion_path)
             methods["fusion (model + solid physics)"] = weights.fuse(p_model, solid)
+    if args.partial >= 1.0:  # every cloud a view: pybullet on the view's hull
+        seen = view_verdicts(sims, index, horizon, args.friction_error, model.cfg.num_points)
+        methods.update({f"pybullet view hull mu {sign}{pct}%": seen[sign] for sign in "-+"})
     if args.exact_runs > 0:
         methods[f"true shape, {args.exact_runs} runs (ceiling)"] = exact_topples(sims, index, args.exact_runs, horizon)
     result: dict = {name: scores(p, truth) for name, p in methods.items()}
     shown = [m for m in ("model", "fusion (model + solid physics)") if m in methods]
     for name in shown:  # reliability: is a predicted 0.3 a topple in 3 of 10?
         result[name]["reliability"] = calibration(methods[name], truth, bins=5)["reliability"]
-    view = "one camera's view (model only)" if args.partial else "whole clouds"
+    view = "one camera's view" if args.partial else "whole clouds"
     print(f"{args.data}: {len(index)} pushes, {int(truth.sum())} topples, {view}")
     print(f"{'method':<32} {'F1 (P / R)':>20} {'Brier':>7}")
     for name, r in result.items():
