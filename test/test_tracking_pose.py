@@ -43,18 +43,20 @@ class Run:
 
     def __init__(self, frames: int, v0: float = 0.0, a: float = 4.0, w0: float = 0.0, t_push: float = 1.0,
                  heading: float = -1.2, points: int = 20_000, seed: int = 0, config: PoseConfig | None = None,
-                 crop=None) -> None:
+                 crop=None, spin: float = 0.0) -> None:
         self.ids, self.poses = Tracker(), PoseTracker(config)
         self.pos_rest, self.pos_move, self.ang_rest, self.ang_move = [], [], [], []
         self.onsets, self.notes, self.ids_of = [], [], [set(), set(), set()]
         self.confidence: list[float] = []
         self.twists: list[tuple[float, np.ndarray]] = []  # object 0's: (t, linear velocity)
+        self.states: list = []  # object 0's tracked states
         d = np.array([math.cos(heading), math.sin(heading)])
         stop = v0 / a if v0 > 0 else 0.0
         for k in range(frames):
             t = k / RATE
             s = slide(t, t_push, v0, a) if v0 > 0 else 0.0
-            yaw = w0 * s / v0 if v0 > 0 else 0.0  # the spin decelerates in the same proportion
+            # the spin decelerates in the same proportion; without a slide, `spin` turns it in place (rad/s)
+            yaw = w0 * s / v0 if v0 > 0 else spin * max(0.0, t - t_push)
             specs = list(DEFAULT_OBJECTS)
             specs[0] = specs[0].moved(dx=s * d[0], dy=s * d[1], dyaw=yaw)
             scene = tabletop_scene(points, objects=specs, rng=np.random.default_rng(seed * 1000 + k))
@@ -80,6 +82,7 @@ class Run:
                 if j == 0:
                     self.confidence.append(st.confidence)
                     self.twists.append((t, np.asarray(st.linear)))
+                    self.states.append(st)
             self.onsets += [(k, o) for o in up.onsets]
 
 
@@ -139,6 +142,19 @@ def test_an_object_moved_at_constant_speed_keeps_its_twist():
     run = Run(frames=int(1.0 * RATE) + 8, v0=0.3, a=0.01, t_push=1.0, heading=0.3)
     moving = [float(np.linalg.norm(v[:2])) for t, v in run.twists if t > 1.0 + 1.5 / RATE]
     assert len(moving) >= 6 and all(abs(v - 0.3) < 0.03 for v in moving), moving
+
+
+def test_an_object_spinning_in_place_is_not_at_rest():
+    """A box turned in place at 2 rad/s (a robot rotating it about its centre): its position holds within the rest
+    distance, but it moves. Every state from the third cloud of the spin on says so and carries the spin; the
+    rest check looked at positions only, so after three clouds the box read at rest again and again."""
+    t_push = 1.0
+    run = Run(frames=int(2.2 * RATE), spin=2.0, t_push=t_push)
+    spinning = [st for st in run.states if st.t > t_push + 2.5 / RATE]
+    assert len(spinning) >= 15
+    assert all(st.moving for st in spinning), [round(st.t, 2) for st in spinning if not st.moving]
+    assert np.median([st.angular[2] for st in spinning]) == pytest.approx(2.0, abs=0.3)
+    assert len(run.onsets) == 1, [(k, o.object_id, o.t) for k, o in run.onsets]
 
 
 def test_ids_and_poses_survive_a_30_cm_slide_and_a_90_degree_turn():

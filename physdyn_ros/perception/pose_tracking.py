@@ -42,7 +42,8 @@ Per tracked object (its id from tracking.Tracker):
   (`fit_onset`): a slide under Coulomb friction from the rest pose, s(tau) = v0 tau - a tau^2 / 2 until it stops,
   with the onset instant t0, v0 and the spin w0 as unknowns (a, the deceleration, is `deceleration` unless enough
   clouds fix it). The state at t0 (the rest pose) with the twist (v0, w0) is reported once as the push's initial
-  state.
+  state. The object rests again once `rest_frames` poses lie within `rest_distance` and `rest_angle` of each
+  other (an object turned in place keeps its position but moves).
 
 Bad input: a stamp not after the previous one (a frozen sensor sends the same cloud twice) is skipped with the
 reason; time going back by more than `max_gap` (a replayed bag) drops every track; after a gap longer than
@@ -87,8 +88,9 @@ class PoseConfig:
     onset_distance: float = 0.004  # m from the rest pose
     onset_angle: float = math.radians(3.0)  # rad from the rest orientation
     onset_frames: int = 2  # moving clouds before the push's initial state is fitted
-    rest_frames: int = 3  # clouds within rest_distance of each other: at rest again
+    rest_frames: int = 3  # clouds within rest_distance and rest_angle of each other: at rest again
     rest_distance: float = 0.002  # m
+    rest_angle: float = math.radians(1.5)  # rad: an object turning in place (0.2 rad/s or more) is not at rest
     deceleration: float = 0.5 * G  # m/s^2: Coulomb friction mu g with mu 0.5 when the clouds cannot tell
     max_gap: float = 1.0  # s without a cloud: the motion history is dropped
 
@@ -519,7 +521,9 @@ class PoseTracker:
         onset = None
         recent = list(track.history)[-cfg.rest_frames:]
         still = len(recent) >= cfg.rest_frames and max(
-            float(np.linalg.norm(h[1] - recent[-1][1])) for h in recent) < cfg.rest_distance
+            float(np.linalg.norm(h[1] - recent[-1][1])) for h in recent) < cfg.rest_distance and max(
+            float(np.linalg.norm(Rotation.from_matrix(h[2] @ recent[-1][2].T).as_rotvec())) for h in recent
+        ) < cfg.rest_angle
         if track.push and not track.reported and (len(track.push) >= cfg.onset_frames or still):
             if off >= CONFIRM * cfg.onset_distance or turn >= CONFIRM * cfg.onset_angle:
                 onset = self._report_onset(track)
