@@ -93,7 +93,7 @@ def trials(n: int, seed: int) -> list[dict]:
                     "goal": (d * math.cos(bearing), d * math.sin(bearing),
                              yaw0 + float(rng.uniform(-math.pi / 4, math.pi / 4))),
                     "camera": (math.cos(VIEW_ELEVATION) * math.cos(az), math.cos(VIEW_ELEVATION) * math.sin(az),
-                               math.sin(VIEW_ELEVATION))})
+                               math.sin(VIEW_ELEVATION)), "noise_seed": (seed, i)})
     return out
 
 
@@ -157,7 +157,7 @@ def run(model, name: str, cases: list[dict], max_pushes: int, budget: float, fri
                         break
                 goal = Goal(Pose2D(*c["goal"]), 0.02, math.radians(10.0))
                 seen = {"view": np.array(c["camera"]), "cloud_noise": VIEW_NOISE,
-                        "rng": np.random.default_rng(c["shape_seed"])} if view else {}
+                        "rng": np.random.default_rng(c["noise_seed"])} if view else {}
                 res = closed_loop.push_to_goal(sim, planner, goal, max_pushes=max_pushes, mass=sim.mass, adapt=adapt,
                                                **seen)
                 times += res.planning_times
@@ -242,8 +242,7 @@ def main() -> int:
     ap.add_argument("--physics-check", type=int, choices=(0, 1), default=1,
                     help="learned planner physics_check: re-simulate its finalists on the cloud's hull (default 1)")
     ap.add_argument("--whole-cloud", type=int, choices=(0, 1), default=1,
-                    help="planner whole_cloud: 1 the physics check weighs the solid the cloud encloses, 0 the "
-                         "clouds are taken as one camera's views and closed (shapes.solid.complete_view)")
+                    help="planner whole_cloud: 1 the physics check weighs the solid the cloud encloses, 0 its hull")
     ap.add_argument("--view", type=int, choices=(0, 1), default=0,
                     help="1: the learned planner sees one depth camera's view per trial (30 deg up, 2 mm noise) and "
                          "plans with whole_cloud false; the oracle keeps the whole cloud")

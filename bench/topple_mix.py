@@ -22,7 +22,7 @@ hull (whole cloud, true initial state) at the true friction -20 % and +20 % (top
 advance: the mean of the model and the two hull runs, and 0.6 x the model + 0.4 x the hulls' mean. With whole
 clouds also the hull weighing as the solid the cloud encloses (topple_fusion.SolidPhysics, about the solid's own
 centre of mass) at -20 % and +20 %, and the checkpoint's topple fusion (physdyn_ros.topple_fusion: the model and
-those runs, weights fitted on other shapes and stored beside the checkpoint). With `--partial 1` instead pybullet on
+those runs, weights fitted on other shapes and stored beside the checkpoint). With `--partial 1` also pybullet on
 the convex hull of each view the model saw (what the planner's physics check simulates with whole_cloud false),
 -20 % and +20 %. `--exact-runs K`: the ceiling of any predictor fed these initial states, the true shape (the
 dataset's procedural shapes, rebuilt) re-simulated K times with the initial velocities perturbed by 1 % (pushing is
@@ -44,6 +44,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+ROLLOUT_BATCH = 256  # the model's roll-outs per batch; each batch draws its views from its own seed
+VIEW_NOISE = 0.002  # m of Gaussian noise on one camera's views (--partial)
 
 
 def scores(prob: np.ndarray, truth: np.ndarray) -> dict:
@@ -84,24 +86,25 @@ def exact_topples(sims, index: np.ndarray, runs: int, horizon: int, noise: float
     return out
 
 
-def view_verdicts(sims, index: np.ndarray, horizon: int, friction_error: float,
-                  num_points: int) -> dict[str, np.ndarray]:
-    """pybullet on the convex hull of one camera's view of each push at uniform density (the views and noise
-    model_rollouts(partial=1) gave a model of `num_points` points: what the planner checks with whole_cloud
-    false), the true initial velocities about the true centre of mass, friction -/+ friction_error. (B,) 1.0 where
-    it toppled, per sign."""
+def view_verdicts(sims, index: np.ndarray, horizon: int, friction_error: float, num_points: int,
+                  noise: float) -> dict[str, np.ndarray]:
+    """pybullet on the convex hull of one camera's view of each push at uniform density (what the planner checks
+    with whole_cloud false): the views model_rollouts(partial=1, noise) drew for a model of `num_points` points
+    (its batches and view seeds), the true initial velocities about the true centre of mass, friction -/+
+    friction_error. (B,) 1.0 where it toppled, per sign."""
+    from physdyn_ros.learn.baselines import sim_config_from_manifest
     from physdyn_ros.learn.evaluate import _batches
     from physdyn_ros.learn.support import DESCRIPTOR_POINTS
     from physdyn_ros.learn.windows import sequences
     from physdyn_ros.shapes.core import shape_from_points
     from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
 
-    cfg = SimConfig(collision="hull")
+    cfg = replace(sim_config_from_manifest(sims.manifest), collision=SimConfig(collision="hull").collision)
     out = {sign: np.zeros(len(index)) for sign in "-+"}
     with Simulator(cfg) as sim:
-        for sl in _batches(len(index), 256):  # model_rollouts' batches and view seeds: the model's own views
+        for sl in _batches(len(index), ROLLOUT_BATCH):  # model_rollouts' batches and view seeds: the model's views
             idx = index[sl]
-            seq = sequences(sims, horizon, num_points, idx, 1.0, 0.002, view_seed=sl.start,
+            seq = sequences(sims, horizon, num_points, idx, 1.0, noise, view_seed=sl.start,
                             desc_points=DESCRIPTOR_POINTS)
             views, true_com = seq["desc_cloud"].double().numpy(), seq["com"].double().numpy()
             table = seq["table"].double().numpy()
@@ -150,8 +153,8 @@ def main() -> int:
     index = np.linspace(0, len(sims) - 1, min(args.max_sequences, len(sims))).astype(np.int64)
     horizon = 60
     with torch.inference_mode():
-        rolled = model_rollouts(model, sims, index, horizon, partial=args.partial,
-                                noise=0.002 if args.partial else 0.0)
+        rolled = model_rollouts(model, sims, index, horizon, batch_size=ROLLOUT_BATCH, partial=args.partial,
+                                noise=VIEW_NOISE if args.partial else 0.0)
     truth = ground_truth(sims, index, horizon).topple_prob.max(axis=1)
     p_model = rolled.topple_prob.max(axis=1)
     pts = sims.points[sims.shape_index[index]]
@@ -175,7 +178,7 @@ def main() -> int:
             weights = topple_fusion.FusionWeights.load(fusion_path)
             methods["fusion (model + solid physics)"] = weights.fuse(p_model, solid)
     if args.partial >= 1.0:  # every cloud a view: pybullet on the view's hull
-        seen = view_verdicts(sims, index, horizon, args.friction_error, model.cfg.num_points)
+        seen = view_verdicts(sims, index, horizon, args.friction_error, model.cfg.num_points, VIEW_NOISE)
         methods.update({f"pybullet view hull mu {sign}{pct}%": seen[sign] for sign in "-+"})
     if args.exact_runs > 0:
         methods[f"true shape, {args.exact_runs} runs (ceiling)"] = exact_topples(sims, index, args.exact_runs, horizon)

@@ -145,9 +145,9 @@ def test_an_object_moved_at_constant_speed_keeps_its_twist():
 
 
 def test_an_object_spinning_in_place_is_not_at_rest():
-    """A box turned in place at 2 rad/s (a robot rotating it about its centre): its position holds within the rest
-    distance, but it moves. Every state from the third cloud of the spin on says so and carries the spin; the
-    rest check looked at positions only, so after three clouds the box read at rest again and again."""
+    """A box turned in place at 2 rad/s (a robot rotating it about its centre) keeps its position within the rest
+    distance but moves: every state from the third cloud of the spin on says so and carries the spin, and the
+    spin is one push, not a new onset every few clouds."""
     t_push = 1.0
     run = Run(frames=int(2.2 * RATE), spin=2.0, t_push=t_push)
     spinning = [st for st in run.states if st.t > t_push + 2.5 / RATE]

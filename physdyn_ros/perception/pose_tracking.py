@@ -42,8 +42,8 @@ Per tracked object (its id from tracking.Tracker):
   (`fit_onset`): a slide under Coulomb friction from the rest pose, s(tau) = v0 tau - a tau^2 / 2 until it stops,
   with the onset instant t0, v0 and the spin w0 as unknowns (a, the deceleration, is `deceleration` unless enough
   clouds fix it). The state at t0 (the rest pose) with the twist (v0, w0) is reported once as the push's initial
-  state. The object rests again once `rest_frames` poses lie within `rest_distance` and `rest_angle` of each
-  other (an object turned in place keeps its position but moves).
+  state. The object rests again once its last `rest_frames` poses lie within `rest_distance` and `rest_angle` of
+  the newest (an object turned in place keeps its position but moves).
 
 Bad input: a stamp not after the previous one (a frozen sensor sends the same cloud twice) is skipped with the
 reason; time going back by more than `max_gap` (a replayed bag) drops every track; after a gap longer than
@@ -90,7 +90,7 @@ class PoseConfig:
     onset_frames: int = 2  # moving clouds before the push's initial state is fitted
     rest_frames: int = 3  # clouds within rest_distance and rest_angle of each other: at rest again
     rest_distance: float = 0.002  # m
-    rest_angle: float = math.radians(1.5)  # rad: an object turning in place (0.2 rad/s or more) is not at rest
+    rest_angle: float = math.radians(2.0)  # rad: an object turning in place (from 0.25 rad/s at 15 Hz) moves
     deceleration: float = 0.5 * G  # m/s^2: Coulomb friction mu g with mu 0.5 when the clouds cannot tell
     max_gap: float = 1.0  # s without a cloud: the motion history is dropped
 

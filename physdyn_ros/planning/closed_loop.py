@@ -79,12 +79,12 @@ def observe(sim: Any, cloud_noise: float = 0.0, rng: Optional[np.random.Generato
             view: Optional[np.ndarray] = None) -> Observation:
     """The object's pose and cloud as seen now (cloud_noise: std of Gaussian noise on the points, m; view: (3,)
     the direction from the object towards a camera far away, table frame: only the points it sees)."""
-    from ..learn.views import visible
-
     pos, quat, _, _ = sim.state()
     pts = np.asarray(sim.shape.points, dtype=np.float64) * np.asarray(sim.scale)
     cloud = geo.quat_rotate(np.broadcast_to(quat, (len(pts), 4)), pts) + pos
     if view is not None:
+        from ..learn.views import visible
+
         cloud = cloud[visible(cloud[None], np.asarray(view, dtype=np.float64)[None])[0]]
     if cloud_noise > 0:
         cloud = cloud + (rng or np.random.default_rng()).normal(0.0, cloud_noise, cloud.shape)
