@@ -92,38 +92,31 @@ def view_verdicts(sims, index: np.ndarray, horizon: int, friction_error: float, 
     with whole_cloud false): the views model_rollouts(partial=1, noise) drew for a model of `num_points` points
     (its batches and view seeds), the true initial velocities about the true centre of mass, friction -/+
     friction_error. (B,) 1.0 where it toppled, per sign."""
-    from physdyn_ros.learn.baselines import sim_config_from_manifest
+    from physdyn_ros.learn.baselines import pybullet_resimulate
     from physdyn_ros.learn.evaluate import _batches
     from physdyn_ros.learn.support import DESCRIPTOR_POINTS
     from physdyn_ros.learn.windows import sequences
     from physdyn_ros.shapes.core import shape_from_points
-    from physdyn_ros.sim import SimConfig, Simulator, simulate_from_state
 
-    cfg = replace(sim_config_from_manifest(sims.manifest), collision=SimConfig(collision="hull").collision)
-    out = {sign: np.zeros(len(index)) for sign in "-+"}
-    with Simulator(cfg) as sim:
-        for sl in _batches(len(index), ROLLOUT_BATCH):  # model_rollouts' batches and view seeds: the model's views
-            idx = index[sl]
-            seq = sequences(sims, horizon, num_points, idx, 1.0, noise, view_seed=sl.start,
-                            desc_points=DESCRIPTOR_POINTS)
-            views, true_com = seq["desc_cloud"].double().numpy(), seq["com"].double().numpy()
-            table = seq["table"].double().numpy()
-            v0, w0 = seq["vel"][:, 0].double().numpy(), seq["angvel"][:, 0].double().numpy()
-            for j, i in enumerate(range(sl.start, sl.stop)):
-                lift = np.array([0.0, 0.0, -table[j]])  # frame C with the table at z = 0
-                view = views[j] + lift
-                try:
-                    c = shape_from_points(view).mass_properties().com
-                    shape = shape_from_points(view - c)
-                except ValueError:
-                    continue  # a flat view: no body, no topple
-                v = v0[j] + np.cross(w0[j], c - (true_com[j] + lift))
-                for sign in "-+":
-                    mu = float(sims.friction[idx[j]]) * (1.0 + (1 if sign == "+" else -1) * friction_error)
-                    rec = simulate_from_state(shape, (1.0, 1.0, 1.0), c, (0.0, 0.0, 0.0, 1.0), v, w0[j],
-                                              friction=mu, num_frames=horizon + 1, config=cfg, sim=sim)
-                    out[sign][i] = float(np.max(rec["toppled"]))
-    return out
+    views, coms, lin = [], [], []
+    ang = np.zeros((len(index), 3))
+    for sl in _batches(len(index), ROLLOUT_BATCH):  # model_rollouts' batches and view seeds: the model's views
+        seq = sequences(sims, horizon, num_points, index[sl], 1.0, noise, view_seed=sl.start,
+                        desc_points=DESCRIPTOR_POINTS)
+        lift = np.zeros((sl.stop - sl.start, 3))
+        lift[:, 2] = -seq["table"].double().numpy()  # frame C with the table at z = 0
+        ang[sl] = seq["angvel"][:, 0].double().numpy()
+        for view, com, v0, w0 in zip(seq["desc_cloud"].double().numpy() + lift[:, None],
+                                     seq["com"].double().numpy() + lift, seq["vel"][:, 0].double().numpy(), ang[sl]):
+            c = shape_from_points(view).mass_properties().com  # the hull's own centre of mass is its body's origin
+            views.append(view - c)
+            coms.append(c)
+            lin.append(v0 + np.cross(w0, c - com))
+    n = len(index)
+    state = (np.ones((n, 3)), np.array(coms), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), np.array(lin), ang)
+    return {sign: pybullet_resimulate(np.stack(views), *state, sims.friction[index] * (1.0 + f * friction_error),
+                                      horizon, sims.manifest)["toppled"].max(axis=1).astype(np.float64)
+            for sign, f in (("-", -1.0), ("+", 1.0))}
 
 
 def main() -> int:
