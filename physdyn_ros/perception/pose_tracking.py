@@ -88,7 +88,7 @@ class PoseConfig:
     onset_distance: float = 0.004  # m from the rest pose
     onset_angle: float = math.radians(3.0)  # rad from the rest orientation
     onset_frames: int = 2  # moving clouds before the push's initial state is fitted
-    rest_frames: int = 3  # clouds within rest_distance and rest_angle of each other: at rest again
+    rest_frames: int = 3  # clouds within rest_distance and rest_angle of the newest: at rest again
     rest_distance: float = 0.002  # m
     rest_angle: float = math.radians(2.0)  # rad: an object turning in place (from 0.25 rad/s at 15 Hz) moves
     deceleration: float = 0.5 * G  # m/s^2: Coulomb friction mu g with mu 0.5 when the clouds cannot tell
@@ -251,6 +251,11 @@ def _end_rate(ts: np.ndarray, values: np.ndarray, line_rate: float) -> float:
     tc = ts - ts[-1]
     rate = float(np.linalg.lstsq(np.stack([np.ones_like(tc), tc, tc * tc], axis=1), values, rcond=None)[0][1])
     return rate if rate * line_rate > 0.0 else 0.0
+
+
+def _turn(rotation: np.ndarray, reference: np.ndarray) -> float:
+    """Angle (rad) of the rotation from `reference` to `rotation` (3 x 3 matrices)."""
+    return float(np.linalg.norm(Rotation.from_matrix(rotation @ reference.T).as_rotvec()))
 
 
 def _slide(tau: np.ndarray, v0: float, a: float) -> np.ndarray:
@@ -445,7 +450,7 @@ class PoseTracker:
             track.history.append((t, fit.translation.copy(), fit.rotation.copy()))
             track.moving, track.push, track.reported = False, [], False
             track.rest_position, track.rest_rotation, track.rest_t = fit.translation.copy(), fit.rotation.copy(), t
-        turn = float(np.linalg.norm(Rotation.from_matrix(fit.rotation @ guess[0].T).as_rotvec()))
+        turn = _turn(fit.rotation, guess[0])
         if fit.rmse < 0.0025 and turn < GROW_TURN and float(np.linalg.norm(fit.translation - guess[1])) < GROW_SHIFT:
             # new faces join the model only at a pose the motion predicted: points added at a pose that a fit
             # turned a few degrees off pull the next fits further off (a yaw that ran away by 100 deg in 25 clouds)
@@ -454,8 +459,8 @@ class PoseTracker:
         onset = self._onset(track)
         if not track.moving:
             seen = track.model.hits >= COM_HITS
-            if track.refine and int(seen.sum()) >= COM_GROWTH * track.com_points and np.linalg.norm(
-                    Rotation.from_matrix(track.rotation @ track.com_rotation.T).as_rotvec()) >= COM_TURN:
+            if track.refine and int(seen.sum()) >= COM_GROWTH * track.com_points and _turn(
+                    track.rotation, track.com_rotation) >= COM_TURN:
                 self._refine_com(track, track.model.points[seen], table_height)
         return self._state(track, note), onset
 
@@ -508,7 +513,7 @@ class PoseTracker:
         cfg = self.config
         t, pos, rot = track.history[-1]
         off = float(np.linalg.norm(pos - track.rest_position))
-        turn = float(np.linalg.norm(Rotation.from_matrix(rot @ track.rest_rotation.T).as_rotvec()))
+        turn = _turn(rot, track.rest_rotation)
         if not track.moving:
             if off > cfg.onset_distance or turn > cfg.onset_angle:
                 track.moving, track.push, track.reported = True, [(t, pos, rot)], False
@@ -520,10 +525,9 @@ class PoseTracker:
             track.push.append((t, pos, rot))
         onset = None
         recent = list(track.history)[-cfg.rest_frames:]
-        still = len(recent) >= cfg.rest_frames and max(
-            float(np.linalg.norm(h[1] - recent[-1][1])) for h in recent) < cfg.rest_distance and max(
-            float(np.linalg.norm(Rotation.from_matrix(h[2] @ recent[-1][2].T).as_rotvec())) for h in recent
-        ) < cfg.rest_angle
+        still = len(recent) >= cfg.rest_frames and all(
+            float(np.linalg.norm(h[1] - recent[-1][1])) < cfg.rest_distance
+            and _turn(h[2], recent[-1][2]) < cfg.rest_angle for h in recent)
         if track.push and not track.reported and (len(track.push) >= cfg.onset_frames or still):
             if off >= CONFIRM * cfg.onset_distance or turn >= CONFIRM * cfg.onset_angle:
                 onset = self._report_onset(track)
