@@ -88,9 +88,10 @@ def _com(built: _Built) -> np.ndarray:
     return mass_properties(built.vertices, built.faces, density=1.0).com
 
 
-def _rest(built: _Built) -> _Built:
-    """Rotate the solid onto its most stable hull face (rocks, polyhedra, unbalanced compositions)."""
-    rot, _ = rest_on_stable_face(built.vertices, built.faces)
+def _rest(built: _Built, within: float | None = None) -> _Built:
+    """Rotate the solid onto its most stable hull face (rocks, polyhedra, unbalanced compositions); `within`: among
+    the faces tilted at most that much (rad) from its bottom (rest_on_stable_face)."""
+    rot, _ = rest_on_stable_face(built.vertices, built.faces, within)
     built.vertices = built.vertices @ rot.T
     if built.parts is not None:
         built.parts = [p @ rot.T for p in built.parts]
@@ -614,10 +615,11 @@ def _gear(rng: np.random.Generator) -> _Built:
 
 
 def _roller(rng: np.random.Generator) -> _Built:
-    # Solids of revolution lying on their side, which roll when pushed across their axis (no other family rests
-    # on a curved side: capsules lie on a flat, prisms and cylinders stand): n-gon cylinders from a pentagon to
-    # nearly round, barrels, capsules with round ends and prolate spheroids, optionally oval in section. Built
-    # along z from n-gon rings with an edge toward +x, then turned to lie along x on that edge's face.
+    # Solids of revolution lying on their side, which roll when pushed across their axis (no other family of
+    # generate_broad2's world rests on a curved side: capsules lie on a flat, prisms and cylinders stand): n-gon
+    # cylinders from a pentagon to nearly round, barrels, capsules with round ends and prolate spheroids,
+    # optionally oval in section. Built along z from n-gon rings with an edge toward +x, then turned to lie along
+    # x on that edge's face.
     kind = str(rng.choice(["cylinder", "barrel", "capsule", "spheroid"], p=[.35, .25, .2, .2]))
     n = int(rng.choice([5, 6, 7, 8, 10, 12, 16, 24, 40]))
     r = _logu(rng, 0.012, 0.06)
@@ -654,27 +656,30 @@ def _roller(rng: np.random.Generator) -> _Built:
 
 
 def _tool(rng: np.random.Generator) -> _Built:
-    # Handled tools lying on the table: a head on one end of a long thin handle (round or flat bar); hammers (a
-    # box across the handle), pans (an n-gon disc, the handle level with its rim), brushes (a block along it),
-    # ladles and mallets (a ball with a flat spot). Most rest on the head and the handle's end, the handle
-    # slanted; pans on their base with the handle in the air.
+    # Handled tools lying down: a head on one end of a long thin handle (round, or a flat bar lying flat);
+    # hammers (a box across the handle), pans (an n-gon disc, the handle's top level with its rim, or on the table
+    # beside a thin pan), brushes (a block along the handle), ladles and mallets (a ball with a flat spot). Each
+    # rests on its most stable face tilted at most 45 degrees from the pose built (never standing on the head's
+    # end): on the head and the handle's end, the handle slanted, or on the head, the handle in the air.
     kind = str(rng.choice(["hammer", "pan", "brush", "ladle"]))
     length = rng.uniform(0.08, 0.3)
     hr = _logu(rng, 0.004, 0.014)
     flat = bool(rng.random() < 0.4)
-    sec = (box_points([-hr * 2.5, -hr * 0.7, 0.0], [hr * 2.5, hr * 0.7, 0.0])[::2, :2] if flat
-           else polygon(8, hr, flat_phase(8, 0.0)))
+    sec = (box_points([-hr * 0.7, -hr * 2.5, 0.0], [hr * 0.7, hr * 2.5, 0.0])[::2, :2] if flat
+           else polygon(8, hr, flat_phase(8, 0.0)))  # built along z; rotate_to_axis turns its first axis up
     if kind == "hammer":
         hx, hy = rng.uniform(0.012, 0.035), rng.uniform(0.03, 0.09)
         hz = max(hx * rng.uniform(0.7, 1.3), 1.5 * hr)
         head = box_points([-2 * hx, -hy, 0.0], [0.0, hy, 2 * hz])
         zc, x0 = hz, -hx
     elif kind == "pan":
-        rad, t = rng.uniform(0.04, 0.12), _logu(rng, 0.01, 0.05)
+        rad, t = rng.uniform(0.04, 0.12), _logu(rng, 0.012, 0.05)
+        length = min(length, 0.38 - 2 * rad)  # no scaling down: the pan keeps its 1.2 cm
         n = int(rng.choice([8, 12, 24]))
         disc = polygon(n, rad, flat_phase(n, 0.0)) - [rad, 0.0]
         head = frustum_points(disc, 0.0, disc, t)
-        zc, x0 = max(t - hr, hr), -0.1 * rad
+        half = 0.7 * hr if flat else hr  # the handle's half height
+        zc, x0 = max(t - half, half), -0.1 * rad
     elif kind == "brush":
         bl, bw, bh = rng.uniform(0.04, 0.12), rng.uniform(0.02, 0.06), rng.uniform(0.015, 0.05)
         head = box_points([-bl, -bw / 2, 0.0], [0.0, bw / 2, bh])
@@ -687,21 +692,22 @@ def _tool(rng: np.random.Generator) -> _Built:
     handle = rotate_to_axis(frustum_points(sec, 0.0, sec, length), "x") + [x0, 0.0, zc]
     built = _pieces([head, handle], {"kind": kind, "handle_length": _r(length), "handle_radius": _r(hr),
                                      "flat_handle": flat})
-    return _fit(_rest(built))
+    return _fit(_rest(built, within=np.radians(45.0)))
 
 
 def _topheavy(rng: np.random.Generator) -> _Built:
     # Upright objects heavy above a narrow base: lamps, trophies, solid goblets, signs on a post; a foot (n-gon
-    # disc), a thin stem and a bulky top wider than the foot (a block about as tall as it is wide, a ball, an
-    # inverted cone or a shade), sometimes off the stem's axis (the solid then rests on its most stable face
-    # when the centre of mass leaves the foot). Thin slabs on a column are the held-out legged family's.
+    # disc), a thin stem and a bulky top 0.6-2.2 foot radii across (a block about as tall as it is wide, a ball,
+    # an inverted cone or a shade); blocks, balls and shades sometimes off the stem's axis, the centre of mass
+    # still over the foot. Thin slabs on a column are the held-out legged family's.
     n = int(rng.choice([6, 8, 12, 24]))
     foot_r, foot_t = rng.uniform(0.02, 0.07), _logu(rng, 0.005, 0.025)
     stem_r = max(0.004, rng.uniform(0.1, 0.45) * foot_r)
     stem_h = _logu(rng, 0.03, 0.22)
     kind = str(rng.choice(["block", "ball", "cone", "shade"]))
     size = min(rng.uniform(1.0, 2.2) * foot_r, 0.12)
-    shift = rng.uniform(0.0, 0.6) * foot_r * np.array([1.0, 0.0]) if rng.random() < 0.3 else np.zeros(2)
+    off = rng.random() < 0.3 and kind != "cone"  # a cone's narrow end stays on the stem
+    shift = rng.uniform(0.0, 0.6) * foot_r * np.array([1.0, 0.0]) if off else np.zeros(2)
     z1 = foot_t + stem_h
     wide, narrow = polygon(n, size, flat_phase(n, 0.0)), polygon(n, 1.2 * stem_r, flat_phase(n, 0.0))
     if kind == "block":
@@ -721,35 +727,34 @@ def _topheavy(rng: np.random.Generator) -> _Built:
     built = _pieces([frustum_points(foot, 0.0, foot, foot_t), frustum_points(stem, foot_t, stem, z1), top],
                     {"kind": kind, "foot": _r([foot_r, foot_t]), "stem": _r([stem_r, stem_h]), "top": _r(size),
                      "shift": _r(float(shift[0]))})
-    if support_margin(built.vertices, _com(built)) <= 0:
-        built = _rest(built)
     return _fit(built)
 
 
 def _rocker(rng: np.random.Generator) -> _Built:
-    # Objects resting on a curved side that rock, tip and roll: solid bowls and domes upside down (caps of a
-    # sphere or spheroid, flat side up), eggs and balls (spheroids, standing or lying), half-cylinders lying on
-    # their round side; a small flat at the lowest point (1-12 % of the height, or the lowest ring) to rest on.
+    # Objects resting on a curved side that rock, tip and roll: solid bowls and domes upside down (the lower cap of
+    # an ellipsoid, flat side up), eggs and balls (ellipsoids, standing or lying), half-cylinders lying on their
+    # round side; a small flat at the lowest point to rest on.
     kind = str(rng.choice(["dome", "egg", "half_cylinder"], p=[.4, .35, .25]))
     r = _logu(rng, 0.02, 0.12)
     if kind == "dome":
-        a, b = r * rng.uniform(0.8, 1.25), r * rng.uniform(0.8, 1.25)
+        a, b = max(r * rng.uniform(0.8, 1.25), 0.021), max(r * rng.uniform(0.8, 1.25), 0.021)
+        depth = max(rng.uniform(0.3, 1.0) * r, 0.016)
         pts = ellipsoid_points((a, b, r), 14, 28)
-        pts[:, 2] = np.minimum(pts[:, 2], -r + max(rng.uniform(0.3, 1.0) * r, 0.016))  # a cap 0.3-1 radius deep
+        cut = -r + depth
+        ring = np.sqrt(max(1.0 - (cut / r) ** 2, 0.0)) * polygon(28, 1.0)
+        pts = np.vstack([pts[pts[:, 2] < cut], np.column_stack([ring * [a, b], np.full(28, cut)])])
     elif kind == "egg":
         pts = ellipsoid_points((r, r * rng.uniform(0.6, 1.0), r * _logu(rng, 0.6, 1.6)), 14, 28)
     else:
-        n = int(rng.choice([8, 12, 24]))
+        n = int(rng.choice([8, 12, 24]))  # facets of the round side
         ang = np.linspace(np.pi, 2 * np.pi, n + 1)
         half = np.column_stack([np.zeros(n + 1), r * np.cos(ang), r * np.sin(ang)])
-        length = rng.uniform(0.5, 4.0) * r
-        pts = np.vstack([half, half + [length, 0.0, 0.0]])
+        pts = np.vstack([half, half + [max(rng.uniform(0.5, 4.0) * r, 0.015), 0.0, 0.0]])
     levels = np.unique(np.round(pts[:, 2], 9))
     cut = rng.uniform(0.01, 0.12)
     # at least the lowest ring of vertices, so that the flat is a polygon, not one vertex or one edge
     pts[:, 2] = np.maximum(pts[:, 2], max(levels[0] + cut * np.ptp(levels), levels[1]))
     return _fit(_convex(pts, {"kind": kind, "radius": _r(r), "cut_bottom": _r(cut)}))
-
 
 # -------------------------------------------------------------------------------------------------- registry
 _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
@@ -787,7 +792,7 @@ _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
         (_tool, Family("tool", "compositions", False,
                        "handled tools lying down: hammers, pans, brushes, ladles; a head and a long thin handle")),
         (_topheavy, Family("topheavy", "compositions", False,
-                           "lamps, trophies, goblets: a foot, a thin stem and a bulky wider top, sometimes off-axis")),
+                           "lamps, trophies, goblets: a foot, a thin stem and a bulky top, sometimes off-axis")),
         (_rocker, Family("rocker", "rounded", True,
                          "on a curved side: upside-down domes and bowls, eggs, balls, half-cylinders")),
     ]

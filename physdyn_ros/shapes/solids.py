@@ -280,9 +280,11 @@ def _rotation_to_down(n: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * kx + (1 - c) * kx @ kx
 
 
-def rest_on_stable_face(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]:
+def rest_on_stable_face(vertices: np.ndarray, faces: np.ndarray,
+                        within: float | None = None) -> tuple[np.ndarray, float]:
     """The rotation (3, 3) that puts the solid (closed mesh) on its most stable hull face, and that face's
-    stability (margin of the centre of mass inside the face / height of the centre of mass above it)."""
+    stability (margin of the centre of mass inside the face / height of the centre of mass above it). `within`
+    (rad): only faces whose outward normal lies within that angle of -z (the solid keeps roughly its pose)."""
     v = np.asarray(vertices, dtype=np.float64)
     com = mass_properties(v, faces, density=1.0).com
     hv, hf = convex_hull(v)
@@ -293,7 +295,7 @@ def rest_on_stable_face(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.nda
     best, best_score = np.eye(3), -np.inf
     done = np.zeros(len(n), dtype=bool)
     for i in range(len(n)):
-        if done[i]:
+        if done[i] or (within is not None and -n[i, 2] < np.cos(within)):
             continue
         group = (~done) & (n @ n[i] > 1 - 1e-7) & (np.abs(d - d[i]) < 1e-7)
         done |= group
