@@ -250,9 +250,8 @@ def test_splits_are_object_level():
 
 def test_broad_config_resolves():
     """config/generate_broad2.yaml: every category (the paper's six and the families) but the three no config
-    holds, thousands of shapes,
-    whole families held out, the parts collision and thin-object scale limits; generate_broad.yaml the same
-    without the roller family (the world the shipped model was trained on)."""
+    holds, thousands of shapes, whole families held out, the parts collision and thin-object scale limits;
+    generate_broad.yaml the same without the roller family (the world the shipped model was trained on)."""
     from physdyn_ros.shapes import ALL_CATEGORIES, FAMILIES, HELD_OUT_FAMILIES
 
     configs = {name: params(config=name) for name in ("generate_broad", "generate_broad2")}
