@@ -184,6 +184,7 @@ def test_shapes_and_data_do_not_import_pybullet():
 from physdyn_ros.shapes import (ALL_CATEGORIES, FAMILIES, FAMILY_CATALOGUE, HELD_OUT_FAMILIES,  # noqa: E402
                                 resolve_shape)
 from physdyn_ros.shapes import solids  # noqa: E402
+from scipy.sparse.csgraph import connected_components  # noqa: E402
 
 
 def _inside_depth(points: np.ndarray, part: np.ndarray) -> np.ndarray:
@@ -261,16 +262,9 @@ def test_family_is_a_varied_closed_solid(family):
         assert vol <= part_volumes * (1 + 1e-9) and vol < hull_volume * (1 + 1e-9)
         # The cloud lies on the union's surface, never inside a piece (the faces where pieces meet are gone).
         assert max(_inside_depth(s.points, p).max() for p in s.parts) < 1e-6
-        # One body: every piece touches or overlaps another (a vertex of one on or inside the other), linked up.
-        touch = [[i != j and _touching(a, b) for j, b in enumerate(s.parts)] for i, a in enumerate(s.parts)]
-        linked, grew = {0}, True
-        while grew:
-            grew = False
-            for i in list(linked):
-                new = {j for j, t in enumerate(touch[i]) if t} - linked
-                linked |= new
-                grew |= bool(new)
-        assert len(linked) == len(s.parts), (s.name, len(linked), len(s.parts))
+        # One body: the pieces, linked where two touch or overlap, form one connected graph.
+        touch = np.array([[i != j and _touching(a, b) for j, b in enumerate(s.parts)] for i, a in enumerate(s.parts)])
+        assert connected_components(touch, directed=False)[0] == 1, s.name
 
 
 @pytest.mark.parametrize("family", FAMILIES)

@@ -756,6 +756,7 @@ def _rocker(rng: np.random.Generator) -> _Built:
     pts[:, 2] = np.maximum(pts[:, 2], max(levels[0] + cut * np.ptp(levels), levels[1]))
     return _fit(_convex(pts, {"kind": kind, "radius": _r(r), "cut_bottom": _r(cut)}))
 
+
 # -------------------------------------------------------------------------------------------------- registry
 _NEW: dict[str, tuple[Callable[[np.random.Generator], _Built], Family]] = {
     f.name: (b, f) for b, f in [
