@@ -158,10 +158,10 @@ class PerceptionNode(ManagedNode):
         declare(self, "track_poses", True, "publish each tracked object's pose and twist on tracked_state and its "
                 "state at a push's onset on initial_state")
         declare(self, "track_com", "footprint", "centre of mass of a new track's reference: 'footprint' = the "
-                "view's geometry before outlier removal (the top faces' outline where they span the footprint, "
-                "else the solid under the view's surface), taken again from the grown model as turns show new "
-                "sides, 'model' = the encoder's centre-of-mass head in x-y (the footprint for models without a "
-                "head)", choices=COM_SOURCES)
+                "view's geometry before outlier removal (the axis of a surface of revolution, else the top faces' "
+                "outline where they span the footprint, else the solid under the view's surface), taken again from "
+                "the grown model as turns show new sides, 'model' = the encoder's centre-of-mass head in x-y (the "
+                "footprint for models without a head)", choices=COM_SOURCES)
         declare(self, "track_tilt", t.tilt, "register in 6 degrees of freedom; false: yaw and translation only "
                 "(objects that stay upright)")
         declare(self, "track_onset_distance", t.onset_distance, "m from the rest pose: the object moves (a push)",

@@ -63,6 +63,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .registration import INLIER_DISTANCE, Fit, ObjectModel, register
+from .revolution import revolution_axis
 from .scene import hull_centroid
 
 G = 9.81  # m/s^2
@@ -155,14 +156,18 @@ class PoseUpdate:
 
 
 def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
-    """Centre-of-mass estimate of an upright object from a partial view. x-y: the area centroid of the convex hull
-    of the x-y projection of its top faces (the points within 5 mm of the top, the 99.5th percentile of the heights:
-    a stray point above it does not count) when that hull's area is at least TOP_SPAN of the whole view's (a box, a
-    cylinder, a prism standing on the table: the camera sees the top whole and it is the footprint); else, where
-    the top is an edge or a point (a wedge, a pyramid), column_com's. The height is column_com's (half the top's for
-    a prism, a third for a wedge)."""
+    """Centre-of-mass estimate of an upright object from a partial view. x-y: the axis of a surface of revolution
+    where the view is one (a bottle, a can, a ball; revolution.revolution_axis); else the area centroid of the
+    convex hull of the x-y projection of its top faces (the points within 5 mm of the top, the 99.5th percentile of
+    the heights: a stray point above it does not count) when that hull's area is at least TOP_SPAN of the whole
+    view's (a box, a cylinder, a prism standing on the table: the camera sees the top whole and it is the
+    footprint); else, where the top is an edge or a point (a wedge, a pyramid), column_com's. The height is
+    column_com's (half the top's for a prism, a third for a wedge)."""
     pts = np.asarray(points, dtype=np.float64)
     column = column_com(pts, table_height)
+    axis = revolution_axis(pts, table_height)
+    if axis is not None:
+        return np.array([axis[0], axis[1], column[2]])
     z = pts[:, 2]
     band = z >= np.percentile(z, 99.5) - 0.005
     if band.sum() < 20:
