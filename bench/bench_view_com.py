@@ -23,7 +23,9 @@ sim's 320 x 240 depth camera from its default eye (what bench_tracking.py feeds 
 5 mm above the table are the view. Three estimates of the centre of mass against the simulator's:
 * footprint: `pose_tracking.footprint_com`, what the perception node takes for a new track (`track_com:
   footprint`, the default);
-* column: `pose_tracking.column_com`, the solid under the view's surface alone (the reference);
+* outline: the same without the axis of a surface of revolution (`pose_tracking.top_outline_xy`, else
+  `column_com`): the reference;
+* column: `pose_tracking.column_com`, the solid under the view's surface alone;
 * head: the shipped encoder's centre-of-mass head (`track_com: model`).
 With --depth-noise / --flying-pixels the views first get a depth camera's errors (bench_tracking.sensor_noise).
 Printed: the x-y error (mm) per category and over all views, median / p90; the last line one JSON object.
@@ -43,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 EYE, TARGET = (0.6, 0.0, 0.45), (0.0, 0.0, 0.05)  # the sim node's default camera
-ESTIMATES = ("footprint", "column", "head")
+ESTIMATES = ("footprint", "outline", "column", "head")
 
 
 def main() -> int:
@@ -65,7 +67,7 @@ def main() -> int:
     import torch
 
     from bench_tracking import sensor_noise
-    from physdyn_ros.perception.pose_tracking import column_com, footprint_com
+    from physdyn_ros.perception.pose_tracking import column_com, footprint_com, top_outline_xy
     from physdyn_ros.predictor import Predictor
     from physdyn_ros.shapes import ALL_CATEGORIES, PYBULLET_DATA_CATEGORY, resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
@@ -99,7 +101,9 @@ def main() -> int:
                 view = points[points[:, 2] > 0.005]
                 if len(view) < 50:
                     continue
+                top = top_outline_xy(view)
                 found = {"footprint": footprint_com(view), "column": column_com(view),
+                         "outline": column_com(view) if top is None else top,
                          "head": np.asarray(predictor.encode(view).centroid)}
                 for name, com in found.items():
                     errors[category][name].append(1e3 * float(np.linalg.norm(com[:2] - truth[:2])))
@@ -121,9 +125,9 @@ def main() -> int:
         median, p90 = stats([v for c in categories for v in errors[c][e]])
         result[f"{e}_xy_error_median_mm"], result[f"{e}_xy_error_p90_mm"] = median, p90
         print(f"{'all':16s}{e:>10s}: {median} / {p90} mm")
-    foot, column = result["footprint_xy_error_median_mm"], result["column_xy_error_median_mm"]
-    result["footprint_over_column_median"] = (round(float(foot) / float(column), 3)  # type: ignore[arg-type]
-                                              if foot is not None and column else None)
+    foot, outline = result["footprint_xy_error_median_mm"], result["outline_xy_error_median_mm"]
+    result["footprint_over_outline_median"] = (round(float(foot) / float(outline), 3)  # type: ignore[arg-type]
+                                               if foot is not None and outline else None)
     result.update({"depth_noise_m": args.depth_noise, "flying_pixels": args.flying_pixels, "seeds": seeds,
                    "yaws": args.yaws})
     print(json.dumps(result))

@@ -128,3 +128,30 @@ def test_the_sim_camera_sees_bottles_and_vases_centred():
             com = footprint_com(pts[pts[:, 2] > 0.005])
             errors.setdefault(f"{category} {seed}", []).append(round(1e3 * float(np.linalg.norm(com[:2] - truth)), 1))
     assert max(max(e) for e in errors.values()) < 3.0, errors
+
+
+def test_a_round_front_on_a_flat_back_keeps_the_top_outline():
+    """A half cylinder seen from its round side fits one axis, which lies on its flat back; its top face spans the
+    footprint, and the outline's centroid, 17 mm from that axis, is the centre of mass's x-y."""
+    rng = np.random.default_rng(5)
+    r, h, n = 0.05, 0.08, 3000
+    phi = rng.uniform(-0.5 * math.pi, 0.5 * math.pi, n)  # the round side, facing +x (the camera)
+    side = np.c_[r * np.cos(phi), r * np.sin(phi), rng.uniform(0.0, h, n)]
+    rho, t = r * np.sqrt(rng.uniform(0.0, 1.0, n)), rng.uniform(-0.5 * math.pi, 0.5 * math.pi, n)
+    top = np.c_[rho * np.cos(t), rho * np.sin(t), np.full(n, h)]
+    pts = np.r_[side, top] + [AXIS[0], AXIS[1], 0.0]
+    np.testing.assert_allclose(revolution_axis(pts), AXIS, atol=0.001)  # the round side alone: an axis
+    half_disc_centroid = AXIS + [4.0 * r / (3.0 * math.pi), 0.0]
+    np.testing.assert_allclose(footprint_com(pts)[:2], half_disc_centroid, atol=0.002)
+
+
+def test_bad_points_and_a_raised_table():
+    """Non-finite points are left out (before they raised or never returned); a table at 0.75 m is the same."""
+    pts = one_side(bottle_radius, 0.22, 0.4)
+    bad = pts.copy()
+    bad[::50] = np.nan
+    bad[1::50] = np.inf
+    np.testing.assert_allclose(revolution_axis(bad), AXIS, atol=0.001)
+    np.testing.assert_allclose(footprint_com(bad)[:2], AXIS, atol=0.001)
+    np.testing.assert_allclose(revolution_axis(pts + [0.0, 0.0, 0.75], table_height=0.75), AXIS, atol=0.001)
+    assert revolution_axis(np.full((200, 3), np.nan)) is None

@@ -72,6 +72,8 @@ G = 9.81  # m/s^2
 COM_SOURCES = ("footprint", "model")
 #: footprint_com takes the top faces' outline for the footprint where its area is this share of the view's outline's
 TOP_SPAN = 0.7
+#: ... and keeps a surface of revolution's axis there only within this (m) of that outline's centroid.
+AXIS_AGREEMENT = 0.003
 
 
 @dataclass
@@ -155,29 +157,38 @@ class PoseUpdate:
     notes: list[str] = field(default_factory=list)
 
 
-def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
-    """Centre-of-mass estimate of an upright object from a partial view. x-y: the axis of a surface of revolution
-    where the view is one (a bottle, a can, a ball; revolution.revolution_axis); else the area centroid of the
-    convex hull of the x-y projection of its top faces (the points within 5 mm of the top, the 99.5th percentile of
-    the heights: a stray point above it does not count) when that hull's area is at least TOP_SPAN of the whole
-    view's (a box, a cylinder, a prism standing on the table: the camera sees the top whole and it is the
-    footprint); else, where the top is an edge or a point (a wedge, a pyramid), column_com's. The height is
-    column_com's (half the top's for a prism, a third for a wedge)."""
+def top_outline_xy(points: np.ndarray) -> np.ndarray | None:
+    """x-y (2,) area centroid of the convex hull of the x-y projection of a view's top faces (the points within
+    5 mm of the top, the 99.5th percentile of the heights: a stray point above it does not count), or None unless
+    that hull's area is at least TOP_SPAN of the whole view's (a box, a cylinder, a prism standing on the table:
+    the camera sees the top whole and it is the footprint)."""
     pts = np.asarray(points, dtype=np.float64)
-    column = column_com(pts, table_height)
-    axis = revolution_axis(pts, table_height)
-    if axis is not None:
-        return np.array([axis[0], axis[1], column[2]])
     z = pts[:, 2]
     band = z >= np.percentile(z, 99.5) - 0.005
     if band.sum() < 20:
-        return column
+        return None
     # the top faces only: the side faces the camera sees lie on the footprint's near edge, densely, while its
     # far edge is sampled by the top face alone, which would pull the centroid of every point towards the camera
     top, whole = hull_centroid(pts[band, :2]), hull_centroid(pts[:, :2])
     if top is None or whole is None or top[1] < TOP_SPAN * whole[1]:
-        return column
-    return np.array([top[0][0], top[0][1], column[2]])
+        return None
+    return np.asarray(top[0], dtype=np.float64)
+
+
+def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
+    """Centre-of-mass estimate of an upright object from a partial view. x-y: the axis of a surface of revolution
+    where the view is one (a bottle, a can, a ball; revolution.revolution_axis), unless the top faces' outline
+    spans the footprint (top_outline_xy) and its centroid lies more than AXIS_AGREEMENT from the axis (a round
+    front on a flat or oval back: the outline sees the whole top); else that outline's centroid; else, where the
+    top is an edge or a point (a wedge, a pyramid), column_com's. The height is column_com's (half the top's for a
+    prism, a third for a wedge)."""
+    pts = np.asarray(points, dtype=np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)] if pts.ndim == 2 else pts
+    column = column_com(pts, table_height)
+    axis, top = revolution_axis(pts, table_height), top_outline_xy(pts)
+    if axis is not None and (top is None or np.linalg.norm(axis - top) <= AXIS_AGREEMENT):
+        return np.array([axis[0], axis[1], column[2]])
+    return column if top is None else np.array([top[0], top[1], column[2]])
 
 
 def misfit(fit: Fit) -> float:

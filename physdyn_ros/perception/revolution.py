@@ -25,8 +25,9 @@ with the points farther than 3 robust sigmas from it left out. The view counts a
 surface of revolution only when most bands lie on their circles up to sensor noise, their arcs span at least
 MIN_ARC, and their centres agree within AGREEMENT. The test on noise: the residuals, smoothed along the arc by a
 running median, stay within SYSTEMATIC. Sensor noise averages out of them, while the flat faces of a box or a
-prism, or a rounded box's corners, leave a systematic pattern that does not. Everything else (a box, a wedge, a
-mug's handle side) returns None, and the caller keeps its own estimate.
+prism, or a rounded box's corners, leave a systematic pattern that does not. Everything else (a box, a wedge)
+returns None, and the caller keeps its own estimate. A handle counts as outliers while it holds under a fifth of a
+band's points.
 """
 from __future__ import annotations
 
@@ -51,11 +52,12 @@ OUTLIER_SIGMAS, OUTLIER_FLOOR = 3.0, 0.0015
 MIN_INLIER_SHARE = 0.8
 #: Systematic residual allowed: m, plus this share of the radius (95th percentile of the smoothed residuals).
 SYSTEMATIC = (0.0007, 0.003)
-#: Arc a band must span about its centre: a shorter one fixes the centre poorly.
-MIN_ARC = math.radians(90.0)
-#: A radius above RADIUS_SPAN x the band's extent plus RADIUS_SLACK (m) is a nearly flat face, not an arc.
+#: Arc a band must span about its centre (a shorter one fixes the centre poorly), and the widest gap within it.
+MIN_ARC, MAX_GAP = math.radians(90.0), math.radians(45.0)
+#: A radius above RADIUS_SPAN x the band's extent (its bounding box's diagonal) plus RADIUS_SLACK (m) is a nearly
+#: flat face, not an arc.
 RADIUS_SPAN, RADIUS_SLACK = 0.75, 0.01
-#: Band centres must lie within this (m) of their median.
+#: Band centres must lie within this (m) of each other.
 AGREEMENT = 0.004
 
 
@@ -81,29 +83,36 @@ def _tapered(xy: np.ndarray, dz: np.ndarray) -> tuple[np.ndarray, float, float]:
 
 
 def _band_centre(xy: np.ndarray, dz: np.ndarray) -> Optional[np.ndarray]:
-    """The axis of the circles a band's points (N, 2) at heights dz (N,, from the band's middle) lie on, or None
+    """The axis of the circles a band's points (N, 2) at heights dz (N; from the band's middle) lie on, or None
     when they do not lie on such circles."""
     keep = np.ones(len(xy), dtype=bool)
-    for _ in range(3):
-        centre, radius, slope = _tapered(xy[keep], dz[keep])
-        res = np.linalg.norm(xy - centre, axis=1) - (radius + slope * dz)
-        inl = res[keep]
-        sigma = 1.4826 * float(np.median(np.abs(inl - np.median(inl))))
-        keep = np.abs(res) < max(OUTLIER_SIGMAS * sigma, OUTLIER_FLOOR)
-        if keep.sum() < MIN_INLIERS:
+    try:
+        for _ in range(3):
+            centre, radius, slope = _tapered(xy[keep], dz[keep])
+            res = np.linalg.norm(xy - centre, axis=1) - (radius + slope * dz)
+            inl = res[keep]
+            sigma = 1.4826 * float(np.median(np.abs(inl - np.median(inl))))
+            keep = np.abs(res) < max(OUTLIER_SIGMAS * sigma, OUTLIER_FLOOR)
+            if keep.sum() < MIN_INLIERS:
+                return None
+        if keep.mean() < MIN_INLIER_SHARE:
             return None
-    if keep.mean() < MIN_INLIER_SHARE:
+        centre, radius, slope = _tapered(xy[keep], dz[keep])
+    except (ValueError, np.linalg.LinAlgError):  # collinear or coincident points: no circle
         return None
-    centre, radius, slope = _tapered(xy[keep], dz[keep])
     d = xy[keep] - centre
     angle = np.arctan2(d[:, 1], d[:, 0])
     order = np.argsort(angle)
+    gaps = np.diff(np.concatenate([angle[order], angle[order][:1] + 2.0 * math.pi]))
+    widest = int(np.argmax(gaps))
+    # along the arc from one end to the other (not from -pi: an arc across -pi would be joined at its ends)
+    order, inner = np.roll(order, -(widest + 1)), np.delete(gaps, widest)
     res = (np.linalg.norm(d, axis=1) - (radius + slope * dz[keep]))[order]
     smooth = median_filter(res, size=max(9, len(res) // 15) | 1, mode="nearest")
-    gaps = np.diff(np.concatenate([angle[order], angle[order][:1] + 2.0 * math.pi]))
-    extent = float(np.ptp(xy, axis=0).max())
+    extent = float(np.hypot(*np.ptp(xy, axis=0)))
     if (float(np.percentile(np.abs(smooth), 95)) > SYSTEMATIC[0] + SYSTEMATIC[1] * radius
-            or 2.0 * math.pi - float(gaps.max()) < MIN_ARC or radius > RADIUS_SPAN * extent + RADIUS_SLACK):
+            or 2.0 * math.pi - float(gaps[widest]) < MIN_ARC or float(inner.max(initial=0.0)) > MAX_GAP
+            or radius > RADIUS_SPAN * extent + RADIUS_SLACK):
         return None
     return centre
 
@@ -112,7 +121,10 @@ def revolution_axis(points: np.ndarray, table_height: float = 0.0) -> Optional[n
     """x-y (2,) of the vertical axis about which a view's points (N, 3, table frame, m) form a surface of
     revolution, or None when they do not (module docstring)."""
     pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < MIN_BAND_POINTS * 2:
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        return None
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) < MIN_BAND_POINTS * 2:
         return None
     z = pts[:, 2] - table_height
     low, high = max(float(z.min()), BASE_GAP), float(np.percentile(z, 99.5))
@@ -132,6 +144,6 @@ def revolution_axis(points: np.ndarray, table_height: float = 0.0) -> Optional[n
     if len(centres) < 2 or len(centres) < 0.5 * fitted:
         return None
     stacked = np.array(centres)
-    if np.linalg.norm(stacked - np.median(stacked, axis=0), axis=1).max() > AGREEMENT:
+    if np.linalg.norm(stacked[:, None] - stacked[None], axis=2).max() > AGREEMENT:
         return None
     return np.average(stacked, axis=0, weights=weights)
