@@ -85,6 +85,19 @@ class DepthCamera:
 
     def render(self, spec: CameraSpec) -> np.ndarray:
         """The table-frame points (N, 3) of the objects' pixels seen from spec.eye towards spec.target."""
+        return self._pixels(spec)[0]
+
+    def render_each(self, spec: CameraSpec) -> dict[str, np.ndarray]:
+        """render's points split by the object they belong to: object id -> (N_k, 3); objects out of view or
+        hidden behind others are absent."""
+        points, body = self._pixels(spec)
+        owner = {uid: oid for oid, uid in self._visuals.items()}
+        owner.update({b.uid: oid for oid, b in self.sim.bodies.items()})
+        ids = np.array([owner.get(int(u), "") for u in body], dtype=object)
+        return {oid: points[ids == oid] for oid in dict.fromkeys(ids.tolist()) if oid}
+
+    def _pixels(self, spec: CameraSpec) -> tuple[np.ndarray, np.ndarray]:
+        """The objects' pixels as table-frame points (N, 3) and the pybullet body each shows (N,)."""
         eye, target = np.asarray(spec.eye, float), np.asarray(spec.target, float)
         width, height, fov = spec.width, spec.height, spec.fov
         fwd = target - eye
@@ -96,19 +109,23 @@ class DepthCamera:
         c = self.sim.client
         bodies = {b.uid for b in self.sim.bodies.values()} | {self._visual_body(k) for k in self.sim.ids}
         if not bodies:
-            return np.zeros((0, 3))
+            return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
         view = c.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist())
         proj = c.computeProjectionMatrixFOV(fov, width / height, NEAR, FAR)
         _, _, _, depth, seg = c.getCameraImage(width, height, view, proj, renderer=c.ER_TINY_RENDERER)
         depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
         seg = np.asarray(seg).reshape(height, width)
-        mask = np.isin(seg & ((1 << 24) - 1), list(bodies))  # object pixels only (seg = body + (link + 1) << 24)
+        body = seg & ((1 << 24) - 1)  # seg = body + (link + 1) << 24
+        mask = np.isin(body, list(bodies))  # object pixels only
         z = FAR * NEAR / (FAR - (FAR - NEAR) * depth[mask])  # OpenGL depth buffer -> distance along fwd
         v_idx, u_idx = np.nonzero(mask)
         tan = math.tan(math.radians(fov) / 2)
-        xn = (2.0 * (u_idx + 0.5) / width - 1.0) * tan * width / height
-        yn = (1.0 - 2.0 * (v_idx + 0.5) / height) * tan
-        return eye + z[:, None] * (fwd + xn[:, None] * right + yn[:, None] * up)
+        # TinyRenderer samples each pixel at its integer corner, rows counted from the image's bottom: pixel
+        # (u, v) of the returned image (rows from the top) sees the ray through (u, height - 1 - v). Pixel centres
+        # put every point half a pixel off (1.6 mm sideways at 320 x 240 and 0.7 m), off the object's faces
+        xn = (2.0 * u_idx / width - 1.0) * tan * width / height
+        yn = (1.0 - 2.0 * (v_idx + 1.0) / height) * tan
+        return eye + z[:, None] * (fwd + xn[:, None] * right + yn[:, None] * up), body[mask]
 
     def _visual_body(self, object_id: str) -> int:
         """The object's visual copy (made on first use), posed like the object now."""
