@@ -241,3 +241,28 @@ def test_an_objects_surface_is_every_point_near_its_cluster_in_the_table_frame(c
         lo, hi = obj.cluster.min(axis=0), obj.cluster.max(axis=0)
         on_object = np.all((table >= lo) & (table <= hi), axis=1) & (table[:, 2] > 0.01)
         assert len(dense) > 1.5 * len(obj.cluster) and len(dense) >= 0.95 * on_object.sum()
+
+
+def test_a_plane_through_the_objects_is_not_the_table():
+    """A cloud of objects without the table (the sim's camera renders none): a horizontal plane 2 cm up runs
+    through the boxes' sides, with their lower parts below it, and is no table (before: accepted, cutting the
+    objects in two); the table under the same boxes is, also with a depth camera's mixed pixels below it."""
+    rng = np.random.default_rng(0)
+    boxes = []
+    for cx in (-0.2, 0.0, 0.2):  # three 8 cm boxes: their top and two sides the camera sees
+        top = np.c_[rng.uniform(-0.04, 0.04, (400, 2)) + [cx, 0.0], np.full(400, 0.08)]
+        side_x = np.c_[np.full(300, cx + 0.04), rng.uniform(-0.04, 0.04, 300), rng.uniform(0.0, 0.08, 300)]
+        side_y = np.c_[rng.uniform(-0.04, 0.04, 300) + cx, np.full(300, 0.04), rng.uniform(0.0, 0.08, 300)]
+        boxes.append(np.r_[top, side_x, side_y])
+    objects = np.concatenate(boxes)
+    # a sloped face near the plane makes some of its inliers free of points above (the free-share test passes)
+    slope_x = rng.uniform(0.3, 0.4, 300)
+    objects = np.r_[objects, np.c_[slope_x, rng.uniform(-0.04, 0.04, 300), 0.2 * (slope_x - 0.3) + 0.015]]
+    cfg = SceneConfig()
+    through = TablePlane(np.array([0.0, 0.0, 1.0]), -0.02)
+    assert not plane_is_table(objects, through, cfg)
+    table = np.c_[rng.uniform(-0.4, 0.5, (4000, 2)), rng.normal(0.0, 0.001, 4000)]
+    table = table[np.all(np.abs(table[:, :2, None] - np.array([[-0.2, 0.0, 0.2], [0.0, 0.0, 0.0]])[None])
+                         .max(axis=1) > 0.04, axis=1)]  # not under the boxes
+    mixed = objects[rng.random(len(objects)) < 0.02] - [0.0, 0.0, 0.03]  # edges' mixed pixels, below the table
+    assert plane_is_table(np.r_[objects, table, mixed], TablePlane(np.array([0.0, 0.0, 1.0]), 0.0), cfg)
