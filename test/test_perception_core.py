@@ -246,7 +246,8 @@ def test_an_objects_surface_is_every_point_near_its_cluster_in_the_table_frame(c
 def test_a_plane_through_the_objects_is_not_the_table():
     """A cloud of objects without the table (the sim's camera renders none): a horizontal plane 2 cm up runs
     through the boxes' sides, with their lower parts below it, and is no table (before: accepted, cutting the
-    objects in two); the table under the same boxes is, also with a depth camera's mixed pixels below it."""
+    objects in two); the table under the same boxes is, also with a depth camera's mixed pixels below it and a
+    wall at its edge that reaches from the floor to above the objects."""
     rng = np.random.default_rng(0)
     boxes = []
     for cx in (-0.2, 0.0, 0.2):  # three 8 cm boxes: their top and two sides the camera sees
@@ -265,4 +266,8 @@ def test_a_plane_through_the_objects_is_not_the_table():
     table = table[np.all(np.abs(table[:, :2, None] - np.array([[-0.2, 0.0, 0.2], [0.0, 0.0, 0.0]])[None])
                          .max(axis=1) > 0.04, axis=1)]  # not under the boxes
     mixed = objects[rng.random(len(objects)) < 0.02] - [0.0, 0.0, 0.03]  # edges' mixed pixels, below the table
-    assert plane_is_table(np.r_[objects, table, mixed], TablePlane(np.array([0.0, 0.0, 1.0]), 0.0), cfg)
+    on_table = TablePlane(np.array([0.0, 0.0, 1.0]), 0.0)
+    assert plane_is_table(np.r_[objects, table, mixed], on_table, cfg)
+    # a wall at the table's far edge, from the floor to above the objects: it crosses the plane along one edge
+    wall = np.c_[np.full(3000, -0.4), rng.uniform(-0.4, 0.5, 3000), rng.uniform(-0.7, 0.6, 3000)]
+    assert plane_is_table(np.r_[objects, table, mixed, wall], on_table, cfg)

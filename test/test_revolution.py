@@ -155,3 +155,5 @@ def test_bad_points_and_a_raised_table():
     np.testing.assert_allclose(footprint_com(bad)[:2], AXIS, atol=0.001)
     np.testing.assert_allclose(revolution_axis(pts + [0.0, 0.0, 0.75], table_height=0.75), AXIS, atol=0.001)
     assert revolution_axis(np.full((200, 3), np.nan)) is None
+    with pytest.raises(ValueError, match="at least one finite point"):
+        footprint_com(np.full((200, 3), np.nan))

@@ -26,7 +26,7 @@ from physdyn_ros.sim.camera import CameraSpec, DepthCamera
 @pytest.mark.parametrize("resolution", [(320, 240), (200, 150), (640, 360)])
 def test_camera_points_lie_on_the_boxs_faces(resolution):
     """A box at five yaws before the sim node's default camera: the points' median distance to the box's faces is
-    below 0.05 mm (unprojected through pixel centres they lay 0.6-1.9 mm off: half a pixel sideways and down)."""
+    below 0.05 mm (unprojected through pixel centres they lay 0.3-2.5 mm off: half a pixel sideways and down)."""
     spec = CameraSpec.make((0.6, 0.0, 0.45), (0.0, 0.0, 0.05), resolution, 60.0)
     shape = resolve_shape("box", 9001)
     half = np.abs(shape.vertices).max(axis=0)

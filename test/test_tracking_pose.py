@@ -273,10 +273,10 @@ def test_footprint_com_takes_the_top_where_it_spans_the_footprint_else_the_colum
 
 def test_a_camera_view_gives_each_objects_centre_of_mass_within_mm():
     """The sim's depth camera over a box, a speaker and a wedge at three random yaws: footprint_com of each
-    object's view lies within 2 mm of the true centre of mass in x-y in the median, 16 mm at most (a wedge seen
-    with its tall face towards the camera reads 15 mm off: the view shows no depth). The segmentation keeps each
-    object's points before outlier removal (`SceneObject.cluster`), which footprint_com takes: the filtered points
-    lose the top's sparse far edge."""
+    object's pixels (DepthCamera.render_each) lies within 2 mm of the true centre of mass in x-y in the median,
+    8 mm at most (a wedge seen with its tall face towards the camera, a view these yaws do not give, reads 15 mm
+    off: the view shows no depth). The segmentation of the same cloud finds the three objects and keeps each
+    one's points before outlier removal (`SceneObject.cluster`)."""
     from physdyn_ros.shapes import resolve_shape
     from physdyn_ros.sim import SimConfig, Simulator
     from physdyn_ros.sim.camera import CameraSpec, DepthCamera
@@ -296,7 +296,7 @@ def test_a_camera_view_gives_each_objects_centre_of_mass_within_mm():
             objects = segment(camera.render(spec), SceneConfig(), None, np.random.default_rng(0)).objects
             assert len(objects) == 3
             assert all(obj.cluster is not None and len(obj.cluster) >= len(obj.points) for obj in objects)
-    assert np.median(errors) < 0.002 and max(errors) < 0.016, np.round(1e3 * np.array(errors), 1)
+    assert np.median(errors) < 0.002 and max(errors) < 0.008, np.round(1e3 * np.array(errors), 1)
 
 
 def test_at_rest_the_pose_holds_where_the_fit_is_no_better():

@@ -183,7 +183,11 @@ def footprint_com(points: np.ndarray, table_height: float = 0.0) -> np.ndarray:
     top is an edge or a point (a wedge, a pyramid), column_com's. The height is column_com's (half the top's for a
     prism, a third for a wedge)."""
     pts = np.asarray(points, dtype=np.float64)
-    pts = pts[np.isfinite(pts).all(axis=1)] if pts.ndim == 2 else pts
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"footprint_com needs points of shape (N, 3), got {pts.shape}")
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if not len(pts):
+        raise ValueError("footprint_com needs at least one finite point")
     column = column_com(pts, table_height)
     axis, top = revolution_axis(pts, table_height), top_outline_xy(pts)
     if axis is not None and (top is None or np.linalg.norm(axis - top) <= AXIS_AGREEMENT):

@@ -23,10 +23,10 @@ Pipeline of `segment` (each step bounded so that a 100k-point cloud costs a few 
    `plane_max_tilt` of horizontal whose height at the table origin is within `plane_max_offset` of z = 0. Such a
    plane counts as the table only if part of it lies away from the objects (more than `cluster_tolerance` in
    x-y from every point above it): a plane found only under the objects is their bottom faces (a cloud of
-   objects without the table, like the sim's), and is kept; and only if it cuts through no object (points below
-   it under points above it: in a cloud without the table, a plane through the objects' lower faces). The table's inliers and everything below it are
-   then removed from *all* points, with the plane expressed in the cloud's own frame (one dot product per point,
-   no transform of the whole cloud);
+   objects without the table, like the sim's), and is kept; and only if it cuts through no object (points just
+   below it under points above it: in a cloud without the table, a plane through the objects' lower faces). The
+   table's inliers and everything below it are then removed from *all* points, with the plane expressed in the
+   cloud's own frame (one dot product per point, no transform of the whole cloud);
 4. optional voxel grid (`voxel_size`, mean of each cell);
 5. random subsample of the remaining points to `sample_points`, transformed to the table frame;
 6. clusters: the sample's points are binned into cubic cells of side `cluster_tolerance`, and occupied cells
@@ -65,10 +65,9 @@ PLANE_ITERATIONS = 50
 BAND_MARGIN = 0.02
 #: A plane is the table only if at least this share of its sampled inliers lies away from the objects ...
 TABLE_FREE_SHARE = 0.1
-#: ... and it cuts through no object: at most this share of the points above it have points below it in their x-y
-#: cell (a table hides what lies under the objects on it; a depth camera's mixed pixels behind the objects' edges
-#: put up to 4 % there with 2 % of them mixed, a plane through the lower faces of objects on a table-less cloud
-#: 7-21 %).
+#: ... and it cuts through no object: at most this share of its inliers' x-y cells also hold points above it and
+#: points just below it (within plane_max_offset + BAND_MARGIN; a floor lies deeper). A table's area is mostly
+#: free of both; a plane through the lower faces of objects in a table-less cloud has its inliers on those faces.
 TABLE_CUT_SHARE = 0.1
 #: Points farther than this from the table frame's origin (m, any axis) are not used: not a tabletop, and it keeps
 #: the cell keys of the clustering within int64 (1e30 garbage values).
@@ -291,9 +290,9 @@ def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np
 def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> bool:
     """True if part of the plane lies away from the objects on it: at least TABLE_FREE_SHARE of the sample's
     inliers have no point above the plane in their x-y cell or the 8 around it (cells of side
-    max(cluster_tolerance, 1 cm)); and if it cuts through no object: at most TABLE_CUT_SHARE of the points above
-    it have a point below it in their cell (a plane through the lower faces of objects in a cloud without the
-    table would cut them in two)."""
+    max(cluster_tolerance, 1 cm)); and if it cuts through no object: at most TABLE_CUT_SHARE of its inliers' cells
+    also hold points above and just below it (a plane through the lower faces of objects in a cloud without the
+    table; a table's area is free of both, a wall behind it crosses only its edge)."""
     dist = _plane_distances(sample, plane.normal[None], np.array([plane.offset]))[:, 0]
     inliers = sample[np.abs(dist) <= cfg.plane_distance, :2]
     above = sample[dist > cfg.plane_distance, :2]
@@ -302,13 +301,16 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
     if len(above) == 0:
         return True  # only a plane: an empty table
     size = max(cfg.cluster_tolerance, 0.01)
-    below = sample[dist < -cfg.plane_distance, :2]
+    below = sample[(dist < -cfg.plane_distance) & (dist > -(cfg.plane_max_offset + BAND_MARGIN)), :2]
     if len(below):
-        cells_down, cells_above = np.floor(below / size).astype(np.int64), np.floor(above / size).astype(np.int64)
-        low = np.minimum(cells_down.min(axis=0), cells_above.min(axis=0))
-        span = np.maximum(cells_down.max(axis=0), cells_above.max(axis=0)) - low + 1
-        down = np.unique(_cell_keys(cells_down - low, span))
-        if _contains(down, _cell_keys(cells_above - low, span))[0].mean() > TABLE_CUT_SHARE:
+        # the share of the plane's cells with points above and just below: the object's faces through which a
+        # plane of a table-less cloud runs, not a table's area (a wall behind it or mixed pixels: its edges)
+        cells = [np.floor(p / size).astype(np.int64) for p in (inliers, above, below)]
+        low = np.min([c.min(axis=0) for c in cells], axis=0)
+        span = np.max([c.max(axis=0) for c in cells], axis=0) - low + 1
+        key_in, key_up, key_down = (np.unique(_cell_keys(c - low, span)) for c in cells)
+        cut = _contains(key_up, key_in)[0] & _contains(key_down, key_in)[0]
+        if cut.mean() > TABLE_CUT_SHARE:
             return False
     cells_in, cells_up = np.floor(inliers / size).astype(np.int64), np.floor(above / size).astype(np.int64)
     lo = np.minimum(cells_in.min(axis=0), cells_up.min(axis=0)) - 1
@@ -387,8 +389,8 @@ def _clean(points: np.ndarray, cfg: SceneConfig, to_table: RigidTransform | None
                                 f"{cfg.plane_max_offset:g} m of z = 0 (is the table the plane z = 0 of the table "
                                 "frame?)")
         elif not plane_is_table(sample, plane, cfg):
-            scene.plane_note = (f"the plane at z = {plane.height:.3f} m lies only under the objects (their bottom "
-                                "faces, no table in view): kept")
+            scene.plane_note = (f"the plane at z = {plane.height:.3f} m lies only under the objects or cuts "
+                                "through them (no table in view): kept")
         else:
             scene.plane = plane
             n, d = plane.in_frame(to_table)
