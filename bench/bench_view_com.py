@@ -101,9 +101,9 @@ def main() -> int:
                 view = points[points[:, 2] > 0.005]
                 if len(view) < 50:
                     continue
-                top = top_outline_xy(view)
-                found = {"footprint": footprint_com(view), "column": column_com(view),
-                         "outline": column_com(view) if top is None else top,
+                top, column = top_outline_xy(view), column_com(view)
+                found = {"footprint": footprint_com(view), "column": column,
+                         "outline": column if top is None else top,
                          "head": np.asarray(predictor.encode(view).centroid)}
                 for name, com in found.items():
                     errors[category][name].append(1e3 * float(np.linalg.norm(com[:2] - truth[:2])))

@@ -19,15 +19,15 @@ for the footprint (pose_tracking.footprint_com). Their horizontal sections are c
 and the arc each section shows fixes its circle's centre: that axis holds the centre of mass of a uniform solid of
 revolution, whatever side the camera sees.
 
-`revolution_axis` cuts the view into BANDS height bands and fits each but the top one (a cap, a rim, a flat top) with
-circles about one centre whose radius changes linearly with height (a band of a ball narrows), by least squares
-with the points farther than 3 robust sigmas from it left out. The view counts as a
-surface of revolution only when most bands lie on their circles up to sensor noise, their arcs span at least
-MIN_ARC, and their centres agree within AGREEMENT. The test on noise: the residuals, smoothed along the arc by a
-running median, stay within SYSTEMATIC. Sensor noise averages out of them, while the flat faces of a box or a
-prism, or a rounded box's corners, leave a systematic pattern that does not. Everything else (a box, a wedge)
-returns None, and the caller keeps its own estimate. A handle counts as outliers while it holds under a fifth of a
-band's points.
+`revolution_axis` cuts the view into BANDS height bands and fits each but the top one (a cap, a rim, a flat top)
+with circles about one centre whose radius changes linearly with height (a band of a ball narrows), by least
+squares with the points farther than 3 robust sigmas from it left out. The view counts as a surface of revolution
+only when at least half the fitted bands (two at least) lie on their circles up to sensor noise, over arcs that
+span at least MIN_ARC with no gap wider than MAX_GAP, and their centres lie within AGREEMENT of each other. The
+test on noise: the residuals, smoothed along the arc by a running median, stay within SYSTEMATIC. Sensor noise
+averages out of them, while the flat faces of a box or a prism, or a rounded box's corners, leave a systematic
+pattern that does not. Everything else (a box, a wedge) returns None, and the caller keeps its own estimate. A
+handle counts as outliers while it holds under a fifth of a band's points.
 """
 from __future__ import annotations
 

@@ -302,21 +302,19 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
         return True  # only a plane: an empty table
     size = max(cfg.cluster_tolerance, 0.01)
     below = sample[(dist < -cfg.plane_distance) & (dist > -(cfg.plane_max_offset + BAND_MARGIN)), :2]
+    cells_in, cells_up, cells_down = (np.floor(p / size).astype(np.int64) for p in (inliers, above, below))
+    occupied = [c for c in (cells_in, cells_up, cells_down) if len(c)]
+    lo = np.min([c.min(axis=0) for c in occupied], axis=0) - 1  # a border: the neighbours' keys stay distinct
+    dims = np.max([c.max(axis=0) for c in occupied], axis=0) - lo + 2
+    up = np.unique(_cell_keys(cells_up - lo, dims))
+    key_in = _cell_keys(cells_in - lo, dims)
     if len(below):
         # the share of the plane's cells with points above and just below: the object's faces through which a
         # plane of a table-less cloud runs, not a table's area (a wall behind it or mixed pixels: its edges)
-        cells = [np.floor(p / size).astype(np.int64) for p in (inliers, above, below)]
-        low = np.min([c.min(axis=0) for c in cells], axis=0)
-        span = np.max([c.max(axis=0) for c in cells], axis=0) - low + 1
-        key_in, key_up, key_down = (np.unique(_cell_keys(c - low, span)) for c in cells)
-        cut = _contains(key_up, key_in)[0] & _contains(key_down, key_in)[0]
-        if cut.mean() > TABLE_CUT_SHARE:
+        plane_cells = np.unique(key_in)
+        down = np.unique(_cell_keys(cells_down - lo, dims))
+        if (_contains(up, plane_cells)[0] & _contains(down, plane_cells)[0]).mean() > TABLE_CUT_SHARE:
             return False
-    cells_in, cells_up = np.floor(inliers / size).astype(np.int64), np.floor(above / size).astype(np.int64)
-    lo = np.minimum(cells_in.min(axis=0), cells_up.min(axis=0)) - 1
-    dims = np.maximum(cells_in.max(axis=0), cells_up.max(axis=0)) - lo + 2
-    up = np.unique(_cell_keys(cells_up - lo, dims))
-    key_in = _cell_keys(cells_in - lo, dims)
     covered = np.zeros(len(inliers), dtype=bool)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
