@@ -37,6 +37,8 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     rest) from perception's initial_state and the --steps-in tracked states after it (the predictor's steps_in
     in the perception overlay unless given: what the suite publishes last), over the same model fed the true
     initial pose and twist, on the same pushes and the same cloud (medians);
+  * per object: its position error at rest and moving (medians) and its pushes' prediction error over the true
+    state's (median of the per-push ratios, each error at least 1 mm): which shape's view costs what;
   * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost),
     judged on the last of the push window's final 5 clouds that shows all three objects (a sparse object can
     miss one cloud's sample without losing its id);
@@ -46,9 +48,10 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     which the sim's renderer lacks;
   * push_to_goal (--goals trials, 0 for none): the four nodes in this process on the sim's 15 Hz camera clouds, one
     object of a family or seed no model was trained on, a goal 10-18 cm away (tolerance 3 cm, any yaw, up to 3
-    pushes), run once with the suite's state_source perception overlay and once with sim on the same shape, spawn
-    and goal; a trial succeeds when the sim's truth has the object upright within the tolerance (not when the
-    pusher believes so).
+    pushes), run once with the suite's state_source perception overlay and once with the same overlay but the
+    sim's ground truth as the predictor's and the pusher's state (state_source sim, no tracked steps), on the same
+    shape, spawn and goal: both plan from the same one-view camera clouds; a trial succeeds when the sim's truth
+    has the object upright within the tolerance (not when the pusher believes so).
 The last line is one JSON object with the issue's keys.
 """
 from __future__ import annotations
@@ -170,9 +173,10 @@ GOAL_TOLERANCE = 0.03  # m; the yaw is free (a tracked orientation is relative t
 
 
 def goal_trial(source: str, category: str, seed: int, spawn: tuple, goal: tuple, timeout: float = 120.0) -> dict:
-    """One push_to_goal on the four nodes in this process, the suite's state_source overlay applied (both sources
-    on the same 15 Hz camera clouds: only where the pusher and the predictor read states differs); judged by the
-    sim's truth: the object rests upright within GOAL_TOLERANCE of the goal."""
+    """One push_to_goal on the four nodes in this process, the suite's state_source perception overlay applied
+    (both sources on the same 15 Hz camera clouds, planned as one camera's view: only where the pusher and the
+    predictor read states differs); judged by the sim's truth: the object rests upright within GOAL_TOLERANCE of
+    the goal."""
     import threading
 
     from rclpy.action import ActionClient
@@ -188,11 +192,15 @@ def goal_trial(source: str, category: str, seed: int, spawn: tuple, goal: tuple,
     from physdyn_ros.ros.convert import pose, yaw_quaternion
     from physdyn_ros.suite import parse_overrides, state_source_overlay
 
-    overlay = state_source_overlay(source)
-    camera = parse_overrides("sim", state_source_overlay("perception")["sim"])
+    # both runs take the perception overlay (camera clouds, a one-view cloud's planning); the sim's run reads its
+    # states from the sim's ground truth instead, with no tracked states to refine predictions with
+    overlay = {node: parse_overrides(node, values) for node, values in state_source_overlay("perception").items()}
+    if source == "sim":
+        for node in ("predictor", "pusher"):
+            overlay[node] = {k: v for k, v in overlay[node].items() if k != "steps_in"} | {"state_source": "sim"}
 
     def params(node: str, extra: dict) -> list:
-        values = {**(camera if node == "sim" else {}), **parse_overrides(node, overlay.get(node, [])), **extra}
+        values = {**overlay.get(node, {}), **extra}
         return [Parameter(k, value=v) for k, v in values.items()]
 
     tracked_id = "seen" if source == "perception" else "object"  # perception's id is never the sim's there
@@ -405,6 +413,8 @@ def main() -> int:
              for tid, s in tracked[first].items()}
     q_first = {tid: quat(s) for tid, s in tracked[first].items()}
     pos_rest, pos_moving, rot_rest, rot_moving = [], [], [], []
+    per_object: dict[str, dict[str, list[float]]] = {oid: {"rest": [], "moving": [], "prediction": []}
+                                                     for oid, *_ in OBJECTS}
     for k in range(first, frames):
         for tid, s in tracked[k].items():
             oid = match.get(tid)
@@ -416,6 +426,7 @@ def main() -> int:
             rerr = math.degrees(relative_error(quat(s), q_first[tid], q, truth[first][oid][1]))
             moving = float(np.linalg.norm(lin[:2])) > MOVING
             (pos_moving if moving else pos_rest).append(err)
+            per_object[oid]["moving" if moving else "rest"].append(err)
             (rot_moving if moving else rot_rest).append(rerr)
     inverse = {oid: tid for tid, oid in match.items()}
     detected, delays, speed_err, spin_err, pred_ratio_perc, pred_ratio_true, kept = [], [], [], [], [], [], []
@@ -464,6 +475,7 @@ def main() -> int:
         ref = predictor.rollout(code, p["v"], p["w"], 60, position=p0, orientation=q0)
         pred_ratio_perc.append(float(np.linalg.norm(est.positions[-1][:2] - rest_pos[:2])))
         pred_ratio_true.append(float(np.linalg.norm(ref.positions[-1][:2] - rest_pos[:2])))
+        per_object[p["id"]]["prediction"].append(pred_ratio_perc[-1] / max(pred_ratio_true[-1], 1e-3))
     false_rest = sum(1 for k, _ in onsets if k < rest_frames)
 
     def truly_moved(s) -> bool:
@@ -514,6 +526,11 @@ def main() -> int:
           f"camera clouds at 15 Hz; three objects")
     for key, value in out.items():
         print(f"  {key}: {value}")
+    for oid, category, *_ in OBJECTS:
+        figures = per_object[oid]
+        print(f"  {category} ({oid}): position median {med(figures['rest'])} mm at rest, {med(figures['moving'])} mm "
+              f"moving; prediction error over the true state's, median per push {med(figures['prediction'])} "
+              f"({len(figures['prediction'])} pushes)")
     print(json.dumps(out))
     return 0
 
