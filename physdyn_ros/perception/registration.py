@@ -19,7 +19,9 @@ pose (R, t) that maps the model onto points observed in the table frame, startin
 point-to-plane distances, with a small damping so that directions the view does not constrain (the spin of a
 cylinder about its axis, a lone flat face) stay at the guess instead of drifting. The correspondence distance
 halves from `max_distance` down to `min_distance` over the iterations: a coarse guess (the first frame of a push) is
-pulled in, and the final iterations ignore stray points (a hand, a neighbour's edge).
+pulled in, and the final iterations ignore stray points (a hand, a neighbour's edge). A translation left free
+that way (a slide along a long bar seen from its side: its top and side faces hold it only through the grazing
+end face) is then searched along, for the shift that puts the view's ends on the model's (`_slide_along`).
 
 Why not open3d: its registration of ~300 points costs about as much in conversions and thread start-up as
 the whole fit here, and its import takes a second; this loop is a few hundred microseconds per object.
@@ -146,6 +148,59 @@ class ObjectModel:
         return len(new)
 
 
+#: m: the search along a free translation (_slide_along) steps this finely; shifts that leave at most SLIDE_SLACK
+#: (share) more of the points off the model than the best one count as fitting (sensor noise, mixed pixels).
+SLIDE_STEP = 0.002
+SLIDE_SLACK = 0.01
+#: m: a run of fitting shifts at most this much longer than the view's own slack (2 near) is pinned at both ends
+#: (the slack's few points of each end blur its edges by millimetres)
+SLIDE_PINNED = 0.008
+
+
+def _free_translations(vecs: np.ndarray, free: np.ndarray, unit: np.ndarray, size: float) -> np.ndarray:
+    """(k, 3) orthonormal model-frame translation directions among the unconstrained eigenvectors `vecs` (columns,
+    in the solve's scaled unknowns) that move points mostly by translation, not by turning them about the origin
+    (a slide along a face, not the spin of a cylinder)."""
+    axes: list[np.ndarray] = []
+    for v in vecs.T:
+        step = np.zeros(6)
+        step[free] = v * unit
+        move, turn = float(np.linalg.norm(step[3:])), float(np.linalg.norm(step[:3])) * size
+        if move > turn:
+            a = step[3:] / move
+            for b in axes:  # two free slides (a lone flat face): independent directions
+                a = a - (a @ b) * b
+            if float(np.linalg.norm(a)) > 0.5:
+                axes.append(a / float(np.linalg.norm(a)))
+    return np.array(axes).reshape(-1, 3)
+
+
+def _slide_along(model: ObjectModel, y: np.ndarray, axis: np.ndarray, reach: float, near: float) -> float:
+    """m to move the points y (model frame) along `axis` so that the view's ends lie on the model. Point-to-plane
+    terms cannot see a slide along a face; the ends of the view can (a long bar's ends, a box's far edge). The
+    shifts within +-reach that leave the fewest points farther than `near` from the model form a run; a view as
+    long as the model pins it (the run is 2 near long, its middle is the shift), a shorter view (a model grown by
+    faces out of view now) lies anywhere in it: the least shift that keeps the view `near` inside the run's ends."""
+    shifts = np.arange(-reach, reach + 0.5 * SLIDE_STEP, SLIDE_STEP)
+    along = y @ axis
+    # the points farther than reach + near from the view's ends stay on the model at every shift tried
+    ends = y[(along <= along.min() + reach + near) | (along >= along.max() - reach - near)]
+    moved = (ends[None, :, :] + shifts[:, None, None] * axis).reshape(-1, 3)
+    d, _ = model.tree.query(moved, distance_upper_bound=near)
+    off = (~np.isfinite(d)).reshape(len(shifts), -1).sum(axis=1)
+    fewest = off <= off.min() + max(1, int(SLIDE_SLACK * len(y)))
+    centre = int(np.flatnonzero(fewest)[np.argmin(np.abs(shifts[fewest]))])
+    lo, hi = centre, centre
+    while lo > 0 and fewest[lo - 1]:
+        lo -= 1
+    while hi < len(shifts) - 1 and fewest[hi + 1]:
+        hi += 1
+    start, end = float(shifts[lo]), float(shifts[hi])
+    if end - start <= 2.0 * near + SLIDE_PINNED:
+        return 0.5 * (start + end)
+    return float(np.clip(0.0, start + near, end - near))
+
+
 def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, translation: np.ndarray, *,
              max_distance: float = 0.03, min_distance: float = INLIER_DISTANCE, iterations: int = 10,
              damping: float = 1e-4, degenerate: float = 0.08, tilt: bool = True) -> Fit:
@@ -162,6 +217,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
     # threshold finds the directions the view leaves free (a cylinder's spin, a face's in-plane slide)
     unit = np.where(free < 3, 1.0 / model.size, 1.0)
     n_it, rmse, gate = 0, float("inf"), float(max_distance)
+    free_axes = np.zeros((0, 3))  # model-frame translations the last iteration's point-to-plane terms left free
     for k in range(iterations):
         n_it = k + 1
         y = (q - t) @ rot  # the points in the model frame: R^T (q - t)
@@ -190,6 +246,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
         # a truncated solve: no step along unconstrained directions (they stay at the guess, instead of drifting
         # with the noise from cloud to cloud); a little damping on the others
         x = vecs[:, keep] @ ((vecs[:, keep].T @ b) / (vals[keep] + damping * len(r)))
+        free_axes = _free_translations(vecs[:, ~keep], free, unit, model.size)
         step = np.zeros(6)
         step[free] = x * unit
         # y' = dr y + v = R'^T (q - t')  =>  R' = R dr^T, t' = t - R' v
@@ -202,6 +259,8 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
     # orthonormalise (the product of many small rotations drifts by rounding)
     u, _, vt = np.linalg.svd(rot)
     rot = u @ vt
+    for axis in free_axes:
+        t = t - rot @ (axis * _slide_along(model, (q - t) @ rot, axis, max_distance, min_distance))
     y = (q - t) @ rot
     d, idx = model.tree.query(y, distance_upper_bound=min_distance)
     ok = np.isfinite(d)
