@@ -270,6 +270,17 @@ def test_a_view_shorter_than_its_model_is_not_slid():
         assert abs(fit.translation[1] - guess[1]) < 0.001
 
 
+def test_turn_angles_agree_with_scipy_from_a_microradian_to_half_a_turn():
+    from physdyn_ros.perception.pose_tracking import _turn
+
+    rng = np.random.default_rng(5)
+    for angle in (0.0, 1e-6, 1e-3, 0.05, 1.0, 3.0, math.pi):
+        axis = rng.normal(size=3)
+        reference = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        turned = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix() @ reference
+        assert _turn(turned, reference) == pytest.approx(angle, abs=1e-9)
+
+
 def test_fit_onset_recovers_a_slide_from_two_clouds():
     t0, v0, a = 1.03, np.array([0.6, -0.3, 0.0]), 4.905
     speed = float(np.linalg.norm(v0))
