@@ -450,6 +450,22 @@ def test_model_hits_count_surfaces_seen_again_and_move_with_the_origin():
     assert model.tree.query([-0.01, 0.0, 0.0])[0] < 0.003  # the index follows
 
 
+def test_hits_counted_up_to_a_cap_mark_the_same_points_seen():
+    """observe(upto=n) stops counting a point at n hits (it is not queried again) and marks the same points seen
+    n times as counting every cloud."""
+    rng = np.random.default_rng(2)
+    face = np.column_stack([rng.uniform(-0.05, 0.05, (2000, 2)), np.zeros(2000)])
+    counted, capped = ObjectModel(face, voxel=0.003), ObjectModel(face, voxel=0.003)
+    for k in range(9):
+        part = face[face[:, 0] < 0.05 - 0.005 * k]  # the view shrinks: the far edge is seen fewer times
+        cloud = part[rng.choice(len(part), 600, replace=False)]
+        counted.observe(cloud)
+        capped.observe(cloud, upto=5)
+    assert capped.hits.max() == 5 and counted.hits.max() > 5
+    np.testing.assert_array_equal(capped.hits >= 5, counted.hits >= 5)
+    assert 0 < int((counted.hits >= 5).sum()) < len(counted.points)
+
+
 def test_moving_the_origin_keeps_the_voxel_grid_of_the_model():
     """After move_origin by a fraction of a voxel the next growth keeps every point the model had: its thinning
     still sees one point per voxel (on a moved grid, neighbours shared cells and 1/3 of a face was dropped)."""

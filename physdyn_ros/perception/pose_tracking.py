@@ -488,7 +488,7 @@ class PoseTracker:
             # new faces join the model only at a pose the motion predicted: points added at a pose that a fit
             # turned a few degrees off pull the next fits further off (a yaw that ran away by 100 deg in 25 clouds)
             track.model.grow((sub - fit.translation) @ fit.rotation)
-            track.model.observe((pts - fit.translation) @ fit.rotation)
+            track.model.observe((pts - fit.translation) @ fit.rotation, upto=COM_HITS)
         onset = self._onset(track)
         if not track.moving:
             seen = track.model.hits >= COM_HITS

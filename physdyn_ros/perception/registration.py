@@ -104,12 +104,17 @@ class ObjectModel:
             keep = keep[np.linspace(0, len(keep) - 1, self.max_points).astype(int)]
         return keep
 
-    def observe(self, observed_in_model: np.ndarray) -> None:
-        """Count a cloud's points (model frame, at a pose that fits) against the model points they lie near."""
+    def observe(self, observed_in_model: np.ndarray, upto: int | None = None) -> None:
+        """Count a cloud's points (model frame, at a pose that fits) against the model points they lie near; with
+        `upto`, only the model points not yet counted that often (a caller that asks only whether a point was seen
+        `upto` times: at rest, every point in view reaches it within a few clouds and is not queried again)."""
         if not len(observed_in_model) or not len(self.points):
             return
-        d, _ = cKDTree(observed_in_model).query(self.points, distance_upper_bound=1.5 * self.voxel)
-        self.hits[np.isfinite(d)] += 1
+        todo = np.flatnonzero(self.hits < upto) if upto is not None else np.arange(len(self.points))
+        if not len(todo):
+            return
+        d, _ = cKDTree(observed_in_model).query(self.points[todo], distance_upper_bound=1.5 * self.voxel)
+        self.hits[todo[np.isfinite(d)]] += 1
 
     def _index(self) -> None:
         self._tree()
