@@ -38,7 +38,8 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     in the perception overlay unless given: what the suite publishes last), over the same model fed the true
     initial pose and twist, on the same pushes and the same cloud (medians);
   * per object: its position error at rest and moving (medians) and its pushes' prediction error over the true
-    state's (median of the per-push ratios, each error at least 1 mm): which shape's view costs what;
+    state's (median of the per-push ratios, the true state's error taken as at least 1 mm): which shape's view
+    costs what;
   * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost),
     judged on the last of the push window's final 5 clouds that shows all three objects (a sparse object can
     miss one cloud's sample without losing its id);
@@ -175,8 +176,8 @@ GOAL_TOLERANCE = 0.03  # m; the yaw is free (a tracked orientation is relative t
 def goal_trial(source: str, category: str, seed: int, spawn: tuple, goal: tuple, timeout: float = 120.0) -> dict:
     """One push_to_goal on the four nodes in this process, the suite's state_source perception overlay applied
     (both sources on the same 15 Hz camera clouds, planned as one camera's view: only where the pusher and the
-    predictor read states differs); judged by the sim's truth: the object rests upright within GOAL_TOLERANCE of
-    the goal."""
+    predictor read states differs, and the sim's run has no tracked states to refine its predictions with);
+    judged by the sim's truth: the object rests upright within GOAL_TOLERANCE of the goal."""
     import threading
 
     from rclpy.action import ActionClient

@@ -76,6 +76,8 @@ TOP_SPAN = 0.7
 AXIS_AGREEMENT = 0.003
 #: m: the top's flat part, whose outline's centroid top_outline_xy takes, lies this close to its median height
 TOP_FLAT = 0.0015
+#: points a top (or its flat part) needs for its outline to count: fewer are a stray point's few neighbours
+TOP_POINTS = 20
 
 
 @dataclass
@@ -170,7 +172,7 @@ def top_outline_xy(points: np.ndarray) -> np.ndarray | None:
     pts = np.asarray(points, dtype=np.float64)
     z = pts[:, 2]
     band = z >= np.percentile(z, 99.5) - 0.005
-    if band.sum() < 20:
+    if band.sum() < TOP_POINTS:
         return None
     # the top faces only: the side faces the camera sees lie on the footprint's near edge, densely, while its
     # far edge is sampled by the top face alone, which would pull the centroid of every point towards the camera
@@ -179,8 +181,8 @@ def top_outline_xy(points: np.ndarray) -> np.ndarray | None:
         return None
     level = float(np.median(z[band]))
     spread = 1.4826 * float(np.median(np.abs(z[band] - level)))
-    flat = band & (z >= level - max(TOP_FLAT, 3.0 * spread))
-    inner = hull_centroid(pts[flat, :2]) if flat.sum() >= 20 else None
+    flat = band & (np.abs(z - level) <= max(TOP_FLAT, 3.0 * spread))
+    inner = hull_centroid(pts[flat, :2]) if flat.sum() >= TOP_POINTS else None
     return np.asarray((top if inner is None else inner)[0], dtype=np.float64)
 
 

@@ -24,7 +24,8 @@ that way (a slide along a long bar seen from its side: its top and side faces ho
 end face) is then searched along, for the shift that puts the view's ends on the model's (`_slide_along`).
 
 Why not open3d: its registration of ~300 points costs about as much in conversions and thread start-up as
-the whole fit here, and its import takes a second; this loop is a few hundred microseconds per object.
+the whole fit here, and its import takes a second; this loop is a few hundred microseconds per object (the slide
+search about 0.7 ms more where a view leaves a slide free).
 
 `ObjectModel.grow` adds observed points that lie off the model (faces the reference view did not see): after a
 90 deg turn the camera sees other faces than at capture, and a model of the first view only would drag the fit.
@@ -162,34 +163,33 @@ SLIDE_SLACK = 0.01
 SLIDE_PINNED = 0.008
 
 
-def _free_translations(vecs: np.ndarray, free: np.ndarray, unit: np.ndarray, size: float) -> np.ndarray:
-    """(k, 3) orthonormal model-frame translation directions among the unconstrained eigenvectors `vecs` (columns,
-    in the solve's scaled unknowns) that move points mostly by translation, not by turning them about the origin
-    (a slide along a face, not the spin of a cylinder)."""
-    axes: list[np.ndarray] = []
-    for v in vecs.T:
-        step = np.zeros(6)
-        step[free] = v * unit
-        move, turn = float(np.linalg.norm(step[3:])), float(np.linalg.norm(step[:3])) * size
-        if move > turn:
-            a = step[3:] / move
-            for b in axes:  # two free slides (a lone flat face): independent directions
-                a = a - (a @ b) * b
-            if float(np.linalg.norm(a)) > 0.5:
-                axes.append(a / float(np.linalg.norm(a)))
-    return np.array(axes).reshape(-1, 3)
+def _free_translations(vecs: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(k, 3) orthonormal model-frame translation directions within the span of the unconstrained eigenvectors
+    `vecs` (columns, in the solve's scaled unknowns, where a turn counts in metres at the object's size): the
+    directions of that span that are mostly translation (a slide along a face, not the spin of a cylinder). An SVD
+    of the span's translation block, not a test per eigenvector: a free spin and a free slide of near equal
+    curvature come out of eigh mixed."""
+    full = np.zeros((6, vecs.shape[1]))
+    full[free] = vecs
+    if not full.shape[1]:
+        return np.zeros((0, 3))
+    u, sv, _ = np.linalg.svd(full[3:], full_matrices=False)
+    return u[:, sv > math.sqrt(0.5)].T
 
 
 def _slide_along(model: ObjectModel, y: np.ndarray, axis: np.ndarray, reach: float, near: float) -> float:
-    """m to move the points y (model frame) along `axis` so that the view's ends lie on the model. Point-to-plane
-    terms cannot see a slide along a face; the ends of the view can (a long bar's ends, a box's far edge). The
-    shifts within +-reach that leave the fewest points farther than `near` from the model form a run; a view as
-    long as the model pins it (the run is 2 near long, its middle is the shift), a shorter view (a model grown by
-    faces out of view now) lies anywhere in it: the least shift that keeps the view `near` inside the run's ends."""
-    shifts = np.arange(-reach, reach + 0.5 * SLIDE_STEP, SLIDE_STEP)
+    """m to move the points y (model frame) along `axis` so that the view's ends lie on the model (at most `reach`).
+    Point-to-plane terms cannot see a slide along a face; the ends of the view can (a long bar's ends, a box's far
+    edge). The shifts that leave the fewest points farther than `near` from the model form a run: a view as long as
+    the model pins it (the run is 2 near long, its middle is the shift); a run cut by the search's bounds is pinned
+    by its inner end only; a view shorter than the model (a model grown by faces out of view now) lies anywhere in
+    a longer run: the least shift that keeps the view `near` inside its ends. A shift of one step or less is not
+    applied (the subsample's noise, which would reach the twist)."""
+    span = reach + near
+    shifts = np.arange(-span, span + 0.5 * SLIDE_STEP, SLIDE_STEP)
     along = y @ axis
-    # the points farther than reach + near from the view's ends stay on the model at every shift tried
-    ends = y[(along <= along.min() + reach + near) | (along >= along.max() - reach - near)]
+    # the points farther than span + near from the view's ends stay on the model at every shift tried
+    ends = y[(along <= along.min() + span + near) | (along >= along.max() - span - near)]
     moved = (ends[None, :, :] + shifts[:, None, None] * axis).reshape(-1, 3)
     d, _ = model.tree.query(moved, distance_upper_bound=near)
     off = (~np.isfinite(d)).reshape(len(shifts), -1).sum(axis=1)
@@ -201,9 +201,17 @@ def _slide_along(model: ObjectModel, y: np.ndarray, axis: np.ndarray, reach: flo
     while hi < len(shifts) - 1 and fewest[hi + 1]:
         hi += 1
     start, end = float(shifts[lo]), float(shifts[hi])
-    if end - start <= 2.0 * near + SLIDE_PINNED:
-        return 0.5 * (start + end)
-    return float(np.clip(0.0, start + near, end - near))
+    cut_low, cut_high = lo == 0, hi == len(shifts) - 1
+    if cut_high and not cut_low:
+        shift = start + near
+    elif cut_low and not cut_high:
+        shift = end - near
+    elif end - start <= 2.0 * near + SLIDE_PINNED:
+        shift = 0.5 * (start + end)
+    else:
+        shift = float(np.clip(0.0, start + near, end - near))
+    shift = float(np.clip(shift, -reach, reach))
+    return shift if abs(shift) > SLIDE_STEP else 0.0
 
 
 def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, translation: np.ndarray, *,
@@ -229,6 +237,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
         d, idx = model.tree.query(y, distance_upper_bound=gate)
         ok = d < gate
         if ok.sum() < 6:
+            free_axes = np.zeros((0, 3))  # no fit to slide
             break
         yo, p, n = y[ok], model.points[idx[ok]], model.normals[idx[ok]]
         # model-frame residuals n . (y - p) for a small model-frame motion of the points (y -> y + w x y + v);
@@ -251,7 +260,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
         # a truncated solve: no step along unconstrained directions (they stay at the guess, instead of drifting
         # with the noise from cloud to cloud); a little damping on the others
         x = vecs[:, keep] @ ((vecs[:, keep].T @ b) / (vals[keep] + damping * len(r)))
-        free_axes = _free_translations(vecs[:, ~keep], free, unit, model.size)
+        free_axes = _free_translations(vecs[:, ~keep], free)
         step = np.zeros(6)
         step[free] = x * unit
         # y' = dr y + v = R'^T (q - t')  =>  R' = R dr^T, t' = t - R' v
