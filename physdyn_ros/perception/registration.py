@@ -183,8 +183,7 @@ def _slide_along(model: ObjectModel, y: np.ndarray, axis: np.ndarray, reach: flo
     edge). The shifts that leave the fewest points farther than `near` from the model form a run: a view as long as
     the model pins it (the run is 2 near long, its middle is the shift); a run cut by the search's bounds is pinned
     by its inner end only; a view shorter than the model (a model grown by faces out of view now) lies anywhere in
-    a longer run: the least shift that keeps the view `near` inside its ends. A shift of one step or less is not
-    applied (the subsample's noise, which would reach the twist)."""
+    a longer run: the least shift that keeps the view `near` inside its ends."""
     span = reach + near
     shifts = np.arange(-span, span + 0.5 * SLIDE_STEP, SLIDE_STEP)
     along = y @ axis
@@ -210,8 +209,7 @@ def _slide_along(model: ObjectModel, y: np.ndarray, axis: np.ndarray, reach: flo
         shift = 0.5 * (start + end)
     else:
         shift = float(np.clip(0.0, start + near, end - near))
-    shift = float(np.clip(shift, -reach, reach))
-    return shift if abs(shift) > SLIDE_STEP else 0.0
+    return float(np.clip(shift, -reach, reach))
 
 
 def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, translation: np.ndarray, *,
