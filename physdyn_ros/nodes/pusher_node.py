@@ -75,6 +75,8 @@ class EpisodeError(Exception):
 
 #: Pushes per goal at most (a goal's max_pushes is a uint32).
 MAX_PUSHES = 50
+#: s between checks, while a service call is pending, whether the node was deactivated
+CALL_POLL = 0.05
 
 
 def pose2d(msg) -> Pose2D:
@@ -104,7 +106,8 @@ class PusherNode(ManagedNode):
                 low=0.1)
         declare(self, "rest_timeout", 15.0, "s for the pushed object to come to rest", low=0.1)
         declare(self, "feature_timeout", 5.0, "s for a shape feature of the object at rest after a push", low=0.1)
-        declare(self, "service_timeout", 10.0, "s to wait for the predictor's and the sim's services", low=0.1)
+        declare(self, "service_timeout", 10.0, "s to wait for the predictor's and the sim's services (a plan or "
+                "prediction not answered within it is asked once more; a push is waited for 30 s longer)", low=0.1)
         declare(self, "plan_service", "plan_push", "the predictor's PlanPush service", read_only=True)
         declare(self, "predict_service", "predict_trajectory", "the predictor's PredictTrajectory service",
                 read_only=True)
@@ -225,17 +228,30 @@ class PusherNode(ManagedNode):
     def _param(self, name: str):
         return self.get_parameter(name).value
 
-    def _call(self, client, request, what: str):
+    def _call(self, client, request, what: str, idempotent: bool = True):
+        """The service's answer to `request`. A request that may run twice (a plan, a prediction; not a push) is
+        sent again once when no answer came within service_timeout: a reply DDS dropped (one sent before the
+        client's reply reader was matched) would otherwise hold the goal for the whole wait. Deactivating the node
+        ends the wait at once."""
         timeout = float(self._param("service_timeout"))
         if not client.wait_for_service(timeout_sec=timeout):
             raise EpisodeError("invalid", f"{what} service '{client.srv_name}' is not available")
-        future = client.call_async(request)
-        done = threading.Event()
-        future.add_done_callback(lambda _f: done.set())
-        if not done.wait(timeout + 30.0):
+        waits = [timeout, timeout + 30.0] if idempotent else [timeout + 30.0]
+        for wait in waits:
+            future = client.call_async(request)
+            done = threading.Event()
+            future.add_done_callback(lambda _f: done.set())
+            deadline = time.monotonic() + wait
+            while not done.wait(CALL_POLL) and time.monotonic() < deadline:
+                if self._stopping or not self.is_active:
+                    client.remove_pending_request(future)
+                    raise EpisodeError("invalid", f"stopped: {self.not_serving()}")
+            if done.is_set():
+                return future.result()
             client.remove_pending_request(future)
-            raise EpisodeError("timeout", f"{what} service '{client.srv_name}' did not answer")
-        return future.result()
+            if wait is not waits[-1]:
+                self.get_logger().warning(f"{what}: no answer within {wait:g} s; sending the request again")
+        raise EpisodeError("timeout", f"{what} service '{client.srv_name}' did not answer")
 
     # ------------------------------------------------------------------------------------------- goal
     def _execute(self, handle) -> PushToGoal.Result:
@@ -385,7 +401,8 @@ class PusherNode(ManagedNode):
         # perception's track ids are not the sim's: the sim pushes the object at the contact point
         sim_id = "" if self._perception else object_id
         res = self._call(self.push_client, PushObject.Request(object_id=sim_id, impulse=plan.impulse,
-                                                              point=plan.contact_point), "push_object")
+                                                              point=plan.contact_point), "push_object",
+                         idempotent=False)
         if not res.success:
             raise EpisodeError("invalid", f"push_object refused the push: {res.message}")
 
