@@ -237,7 +237,7 @@ class PusherNode(ManagedNode):
         if not client.wait_for_service(timeout_sec=timeout):
             raise EpisodeError("invalid", f"{what} service '{client.srv_name}' is not available")
         waits = [timeout, timeout + 30.0] if idempotent else [timeout + 30.0]
-        for wait in waits:
+        for attempt, wait in enumerate(waits):
             future = client.call_async(request)
             done = threading.Event()
             future.add_done_callback(lambda _f: done.set())
@@ -249,7 +249,7 @@ class PusherNode(ManagedNode):
             if done.is_set():
                 return future.result()
             client.remove_pending_request(future)
-            if wait is not waits[-1]:
+            if attempt < len(waits) - 1:
                 self.get_logger().warning(f"{what}: no answer within {wait:g} s; sending the request again")
         raise EpisodeError("timeout", f"{what} service '{client.srv_name}' did not answer")
 

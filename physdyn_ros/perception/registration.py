@@ -169,10 +169,10 @@ def _free_translations(vecs: np.ndarray, free: np.ndarray) -> np.ndarray:
     directions of that span that are mostly translation (a slide along a face, not the spin of a cylinder). An SVD
     of the span's translation block, not a test per eigenvector: a free spin and a free slide of near equal
     curvature come out of eigh mixed."""
+    if not vecs.shape[1]:
+        return np.zeros((0, 3))
     full = np.zeros((6, vecs.shape[1]))
     full[free] = vecs
-    if not full.shape[1]:
-        return np.zeros((0, 3))
     u, sv, _ = np.linalg.svd(full[3:], full_matrices=False)
     return u[:, sv > math.sqrt(0.5)].T
 
@@ -228,14 +228,14 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
     # threshold finds the directions the view leaves free (a cylinder's spin, a face's in-plane slide)
     unit = np.where(free < 3, 1.0 / model.size, 1.0)
     n_it, rmse, gate = 0, float("inf"), float(max_distance)
-    free_axes = np.zeros((0, 3))  # model-frame translations the last iteration's point-to-plane terms left free
+    free_vecs = np.zeros((len(free), 0))  # the directions the last iteration's point-to-plane terms left free
     for k in range(iterations):
         n_it = k + 1
         y = (q - t) @ rot  # the points in the model frame: R^T (q - t)
         d, idx = model.tree.query(y, distance_upper_bound=gate)
         ok = d < gate
         if ok.sum() < 6:
-            free_axes = np.zeros((0, 3))  # no fit to slide
+            free_vecs = np.zeros((len(free), 0))  # no fit to slide
             break
         yo, p, n = y[ok], model.points[idx[ok]], model.normals[idx[ok]]
         # model-frame residuals n . (y - p) for a small model-frame motion of the points (y -> y + w x y + v);
@@ -258,7 +258,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
         # a truncated solve: no step along unconstrained directions (they stay at the guess, instead of drifting
         # with the noise from cloud to cloud); a little damping on the others
         x = vecs[:, keep] @ ((vecs[:, keep].T @ b) / (vals[keep] + damping * len(r)))
-        free_axes = _free_translations(vecs[:, ~keep], free)
+        free_vecs = vecs[:, ~keep]
         step = np.zeros(6)
         step[free] = x * unit
         # y' = dr y + v = R'^T (q - t')  =>  R' = R dr^T, t' = t - R' v
@@ -271,7 +271,7 @@ def register(points: np.ndarray, model: ObjectModel, rotation: np.ndarray, trans
     # orthonormalise (the product of many small rotations drifts by rounding)
     u, _, vt = np.linalg.svd(rot)
     rot = u @ vt
-    for axis in free_axes:
+    for axis in _free_translations(free_vecs, free):
         t = t - rot @ (axis * _slide_along(model, (q - t) @ rot, axis, max_distance, min_distance))
     y = (q - t) @ rot
     d, idx = model.tree.query(y, distance_upper_bound=min_distance)
