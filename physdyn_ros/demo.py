@@ -134,8 +134,10 @@ class DemoClient:
         return cb
 
     def _spin(self) -> None:
+        from .ros.run import spin_once
+
         while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
+            spin_once(self.executor, 0.05)
 
     def call(self, client, request, timeout: float = 60.0):
         if not client.wait_for_service(timeout_sec=timeout):

@@ -145,6 +145,47 @@ def test_a_callback_that_raises_is_logged_and_the_node_goes_on(rclpy_init):
     assert node.callback_errors >= 3
 
 
+def test_deactivating_from_another_thread_never_stops_the_spinning_thread(rclpy_init):
+    """Deactivate destroys a node's subscriptions while another thread builds the executor's wait set: rclpy then
+    raised InvalidHandle out of spin_once, the spinning thread ended and every later reply was lost (a lifecycle
+    manager's deactivate, the pusher's tests). A tiny GIL switch interval makes the race frequent."""
+    import sys
+
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    from physdyn_ros.ros.lifecycle import ManagedNode
+
+    class Cycled(ManagedNode):
+        def __init__(self) -> None:
+            super().__init__("cycled")
+            self.start()
+
+        def configure(self) -> None:
+            self.configured_service(Trigger, "cycled_trigger", lambda req, res: setattr(res, "success", True) or res)
+
+        def activate(self) -> None:
+            for topic in ("cycled_a", "cycled_b", "cycled_c"):
+                self.active_subscription(String, topic, lambda msg: None, 10)
+
+    node = Cycled()
+    user = rclpy_init.create_node("cycled_user")
+    client = user.create_client(Trigger, "cycled_trigger", qos_profile=SERVICE_CLIENT_QOS)
+    interval = sys.getswitchinterval()
+    with Spinner(node, user, threads=4) as spinner:
+        sys.setswitchinterval(1e-6)
+        try:
+            cycles, t_end = 0, time.monotonic() + 6.0
+            while time.monotonic() < t_end and spinner.thread.is_alive():
+                node.trigger_deactivate()
+                node.trigger_activate()
+                cycles += 1
+        finally:
+            sys.setswitchinterval(interval)
+        assert spinner.thread.is_alive(), f"the spinning thread ended after {cycles} deactivations"
+        assert node.is_active and call(client, Trigger.Request()).success
+
+
 # ---------------------------------------------------------------------------------------------- parameters
 def test_sim_camera_parameters_are_checked_when_set(rclpy_init):
     node = SimNode(parameter_overrides=[Parameter("cloud_source", value="camera"),

@@ -65,9 +65,11 @@ class Spinner:
         self.thread = threading.Thread(target=self._spin, daemon=True)
 
     def _spin(self) -> None:
+        from physdyn_ros.ros.run import spin_once
+
         # spin_once in a loop (not spin): stopping then never races the executor's own shutdown.
         while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.05)
+            spin_once(self.executor, 0.05)
 
     def __enter__(self) -> "Spinner":
         self.thread.start()

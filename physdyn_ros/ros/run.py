@@ -21,8 +21,9 @@ import traceback
 from typing import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.exceptions import InvalidHandle
 
 from ..conventions import PARENT_PID_ENV
 
@@ -44,6 +45,21 @@ def watch_parent(name: str, parent: int, stop: threading.Event) -> threading.Thr
     thread = threading.Thread(target=watch, name="parent-watch", daemon=True)
     thread.start()
     return thread
+
+
+def spin_once(executor: Executor, timeout_sec: float | None = None) -> None:
+    """executor.spin_once, surviving an entity destroyed while the executor gathers its wait set.
+
+    Deactivating a node destroys its subscriptions; when that runs on another thread than the one building the
+    wait set (a MultiThreadedExecutor's worker, a test's thread), rclpy 7 still adds the subscription's QoS event
+    handler to the wait set and raises InvalidHandle (ros2/rclpy#1284), which ended the spinning thread: every
+    later reply of the process was lost. The entity is gone from the node by then, so the next call waits
+    without it.
+    """
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+    except InvalidHandle:
+        pass
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None, threads: int = 0) -> int:
@@ -76,8 +92,7 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         executor.add_node(node)
         while rclpy.ok():
             try:
-                executor.spin()
-                break
+                spin_once(executor)
             except (KeyboardInterrupt, ExternalShutdownException):
                 break
             except Exception as exc:  # noqa: BLE001 - a callback's bug costs that callback, not the node
