@@ -14,9 +14,10 @@
 """The perception node's tracking against the simulator's truth: three objects, depth-camera clouds at 15 Hz.
 
     .venv/bin/python bench/bench_tracking.py [--pushes 24] [--rest-seconds 60] [--resolution 320 240] [--seed 0]
-        [--goals 16]
+        [--goals 16] [--objects box:9001,speaker:9002,wedge:9003]
 
-A pybullet world with three objects (a box, a speaker and a wedge of shapes no model was trained on) is rendered by
+A pybullet world with three objects (by default a box, a speaker and a wedge of shapes no model was trained on;
+--objects picks others, category:seed each) is rendered by
 the sim's depth camera (sim/camera.py, the sim node's default eye and target) every 1/15 s of simulated time; each
 cloud goes through the perception node's own processing (PerceptionNode.process: segmentation, features, tracking),
 as the node does on `cloud`, with the perception settings of config/state_source_perception.yaml (what
@@ -71,6 +72,22 @@ sys.path.insert(0, str(ROOT))
 
 DT_NS = 66_666_667  # 15 Hz
 OBJECTS = (("a", "box", 9001, (0.05, -0.2)), ("b", "speaker", 9002, (0.05, 0.2)), ("c", "wedge", 9003, (-0.2, 0.0)))
+
+
+def parse_objects(text: str) -> tuple:
+    """--objects "category:seed,category:seed,category:seed" -> OBJECTS' form, at OBJECTS' places and ids."""
+    from physdyn_ros.shapes import ALL_CATEGORIES
+
+    specs = [s.strip() for s in text.split(",") if s.strip()]
+    if len(specs) != len(OBJECTS):
+        raise ValueError(f"--objects needs {len(OBJECTS)} category:seed entries, got {len(specs)}")
+    out = []
+    for (oid, _, _, xy), spec in zip(OBJECTS, specs):
+        category, _, seed = spec.partition(":")
+        if category not in ALL_CATEGORIES or not seed.strip().lstrip("-").isdigit():
+            raise ValueError(f"--objects entry '{spec}' is not category:seed with a category of {ALL_CATEGORIES}")
+        out.append((oid, category, int(seed), xy))
+    return tuple(out)
 VIEW = np.array([0.25, 0.3])  # m: |x|, |y| of the table area the camera sees whole
 MOVING = 0.02  # m/s: faster than this (true COM speed) counts as moving
 FRAMES_PER_PUSH = 45
@@ -325,8 +342,14 @@ def main() -> int:
     ap.add_argument("--steps-in", type=int, default=None,
                     help="tracked states after each onset fed to the model with perception's initial_state (default: "
                          "the predictor's steps_in in the perception overlay, what the suite does)")
+    ap.add_argument("--objects", default=",".join(f"{c}:{n}" for _, c, n, _ in OBJECTS),
+                    help="the three objects, category:seed each (default: %(default)s)")
     ap.add_argument("--verbose", action="store_true", help="a line per push and per goal trial")
     args = ap.parse_args()
+    try:
+        objects = parse_objects(args.objects)
+    except ValueError as exc:
+        ap.error(str(exc))
     if not (math.isfinite(args.depth_noise) and args.depth_noise >= 0.0 and 0.0 <= args.flying_pixels <= 1.0):
         ap.error(f"--depth-noise must be >= 0 m and --flying-pixels within [0, 1], got {args.depth_noise:g} and "
                  f"{args.flying_pixels:g}")
@@ -374,7 +397,7 @@ def main() -> int:
     n_points: list[int] = []
     radii: dict[str, float] = {}
     with Simulator(SimConfig(friction=0.5, collision="hull")) as sim:
-        for oid, cat, seed, xy in OBJECTS:
+        for oid, cat, seed, xy in objects:
             shape = resolve_shape(cat, seed)
             sim.spawn(shape, xy=xy, yaw=float(rng.uniform(-math.pi, math.pi)), object_id=oid)
             radii[oid] = float(np.max(np.linalg.norm(shape.vertices[:, :2], axis=1)))  # origin: the COM
@@ -409,13 +432,13 @@ def main() -> int:
                 features[f.object_id] = f
             feature_at.append(dict(features))
     # track ids -> sim ids, by the nearest object on the first cloud with all three tracked
-    first = next(i for i, tr in enumerate(tracked) if len(tr) == len(OBJECTS))
+    first = next(i for i, tr in enumerate(tracked) if len(tr) == len(objects))
     match = {tid: min(truth[first], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2] - truth[first][oid][0][:2]))
              for tid, s in tracked[first].items()}
     q_first = {tid: quat(s) for tid, s in tracked[first].items()}
     pos_rest, pos_moving, rot_rest, rot_moving = [], [], [], []
     per_object: dict[str, dict[str, list[float]]] = {oid: {"rest": [], "moving": [], "prediction": []}
-                                                     for oid, *_ in OBJECTS}
+                                                     for oid, *_ in objects}
     for k in range(first, frames):
         for tid, s in tracked[k].items():
             oid = match.get(tid)
@@ -439,8 +462,8 @@ def main() -> int:
         end = min(p["frame"] + FRAMES_PER_PUSH - 1, frames - 1)
         rest_pos = truth[end][p["id"]][0]
         # judged on the push window's last cloud that shows every object (one cloud may miss a sparse object)
-        judged = next((j for j in range(end, end - 5, -1) if len(tracked[j]) == len(OBJECTS)), end)
-        kept.append(len(tracked[judged]) == len(OBJECTS)
+        judged = next((j for j in range(end, end - 5, -1) if len(tracked[j]) == len(objects)), end)
+        kept.append(len(tracked[judged]) == len(objects)
                     and all(min(truth[judged], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2]
                                                                               - truth[judged][oid][0][:2]))
                             == match.get(t) for t, s in tracked[judged].items()))
@@ -527,7 +550,7 @@ def main() -> int:
           f"camera clouds at 15 Hz; three objects")
     for key, value in out.items():
         print(f"  {key}: {value}")
-    for oid, category, *_ in OBJECTS:
+    for oid, category, *_ in objects:
         figures = per_object[oid]
         print(f"  {category} ({oid}): position median {med(figures['rest'])} mm at rest, {med(figures['moving'])} mm "
               f"moving; prediction error over the true state's, median per push {med(figures['prediction'])} "
