@@ -93,6 +93,34 @@ def test_touching_objects_merge_and_separated_ones_do_not():
     assert np.ptp(found.objects[0].points[:, 0]) > 0.18
 
 
+def cylinder(n: int, radius: float, z0: float, z1: float, centre=(0.0, 0.0), rng=np.random.default_rng(5)
+             ) -> np.ndarray:
+    """n points on the side and the top of an upright cylinder from z0 to z1."""
+    a, r = rng.uniform(0, 2 * np.pi, n), radius * np.sqrt(rng.uniform(0, 1, n))
+    side = rng.uniform(0, 1, n) < 0.5
+    r[side] = radius
+    z = np.where(side, rng.uniform(z0, z1, n), z1)
+    return np.column_stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), z])
+
+
+def test_a_top_held_up_by_a_hidden_stem_is_one_object_with_its_stem():
+    """A camera above a pedestal sees its top's rim and its stem and base, not where they join (the rim hides
+    it): two clusters, one of them floating. The floating one over the other is one object with it; a floating
+    cluster beside an object (the upper part of an object seen over another) and one over the table's remnant
+    (a few mm tall) stay apart."""
+    cfg = SceneConfig()
+    pedestal = np.vstack([cylinder(1500, 0.06, 0.13, 0.145), cylinder(400, 0.012, 0.02, 0.09),
+                          cylinder(800, 0.05, 0.0, 0.02)])
+    found = segment(np.vstack([pedestal, box(2000, centre=(0.25, 0.0))]), cfg)
+    assert len(found.objects) == 2, [o.centroid for o in found.objects]
+    whole = min(found.objects, key=lambda o: np.linalg.norm(o.centroid[:2]))
+    assert np.ptp(whole.cluster[:, 2]) > 0.14 and np.ptp(whole.points[:, 2]) > 0.14
+    beside = np.vstack([box(2000, centre=(0.0, 0.0)), cylinder(800, 0.03, 0.12, 0.16, centre=(0.0, 0.12))])
+    assert len(segment(beside, cfg).objects) == 2
+    remnant = np.vstack([cylinder(800, 0.05, 0.06, 0.08), cylinder(300, 0.04, 0.0, 0.004)])
+    assert len(segment(remnant, cfg).objects) == 2
+
+
 def test_clusters_that_are_not_objects():
     cfg = SceneConfig(remove_plane=False)
     floor = np.column_stack([np.random.default_rng(4).uniform(-1, 1, (20000, 2)), np.zeros(20000)])
