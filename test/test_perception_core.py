@@ -271,6 +271,25 @@ def test_an_objects_surface_is_every_point_near_its_cluster_in_the_table_frame(c
         assert len(dense) > 1.5 * len(obj.cluster) and len(dense) >= 0.95 * on_object.sum()
 
 
+def test_the_flat_top_of_a_ring_beside_other_objects_is_not_the_table():
+    """A cloud without the table: a flat ring's top 2 cm up is a large plane with a free middle, and cuts through
+    too few of the other objects' cells to fail the cut test; but its own side and the other objects' lower parts
+    lie below it, which nothing does under a table. Taken for the table, it cut 2.5 cm off every object and the
+    ring itself was gone."""
+    rng = np.random.default_rng(1)
+    a, r = rng.uniform(0, 2 * np.pi, 1500), np.sqrt(rng.uniform(0.06 ** 2, 0.1 ** 2, 1500))
+    top = np.c_[r * np.cos(a), r * np.sin(a), np.full(1500, 0.02)]
+    b = rng.uniform(-np.pi / 2, np.pi / 2, 300)  # the outer side the camera sees
+    side = np.c_[0.1 * np.cos(b), 0.1 * np.sin(b), rng.uniform(0.0, 0.02, 300)]
+    others = np.r_[box(600, centre=(0.3, 0.1)), box(600, centre=(0.3, -0.12))]
+    cloud = np.r_[top, side, others]
+    plane = TablePlane(np.array([0.0, 0.0, 1.0]), -0.02)
+    assert not plane_is_table(cloud, plane, SceneConfig())
+    found = segment(cloud, SceneConfig())
+    assert found.plane is None and len(found.objects) == 3
+    assert all(o.cluster[:, 2].min() < 0.01 for o in found.objects)  # nothing cut off
+
+
 def test_a_plane_through_the_objects_is_not_the_table():
     """A cloud of objects without the table (the sim's camera renders none): a horizontal plane 2 cm up runs
     through the boxes' sides, with their lower parts below it, and is no table (before: accepted, cutting the

@@ -73,6 +73,11 @@ TABLE_FREE_SHARE = 0.1
 #: points just below it (within plane_max_offset + BAND_MARGIN; a floor lies deeper). A table's area is mostly
 #: free of both; a plane through the lower faces of objects in a table-less cloud has its inliers on those faces.
 TABLE_CUT_SHARE = 0.1
+#: ... and at most this share of the sample lies just below it: a table holds up what is on it, and what a camera
+#: sees below it is its edge, a wall's foot, mixed pixels. More is a lower surface's objects: in a cloud without the
+#: table, the plane is the flat top of a large object (a ring, a tray), its own sides and the other objects' lower
+#: parts below it.
+TABLE_BELOW_SHARE = 0.04
 #: Points farther than this from the table frame's origin (m, any axis) are not used: not a tabletop, and it keeps
 #: the cell keys of the clustering within int64 (1e30 garbage values).
 MAX_COORD = 100.0
@@ -298,9 +303,11 @@ def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np
 def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> bool:
     """True if part of the plane lies away from the objects on it: at least TABLE_FREE_SHARE of the sample's
     inliers have no point above the plane in their x-y cell or the 8 around it (cells of side
-    max(cluster_tolerance, 1 cm)); and if it cuts through no object: at most TABLE_CUT_SHARE of its inliers' cells
+    max(cluster_tolerance, 1 cm)); if it cuts through no object: at most TABLE_CUT_SHARE of its inliers' cells
     also hold points above and just below it (a plane through the lower faces of objects in a cloud without the
-    table; a table's area is free of both, a wall behind it crosses only its edge)."""
+    table; a table's area is free of both, a wall behind it crosses only its edge); and if at most
+    TABLE_BELOW_SHARE of the sample lies just below it (more: the flat top of a ring or a tray in a cloud without
+    the table, with its sides and the other objects' lower parts below it)."""
     dist = _plane_distances(sample, plane.normal[None], np.array([plane.offset]))[:, 0]
     inliers = sample[np.abs(dist) <= cfg.plane_distance, :2]
     above = sample[dist > cfg.plane_distance, :2]
@@ -310,6 +317,8 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
         return True  # only a plane: an empty table
     size = max(cfg.cluster_tolerance, 0.01)
     below = sample[(dist < -cfg.plane_distance) & (dist > -(cfg.plane_max_offset + BAND_MARGIN)), :2]
+    if len(below) > TABLE_BELOW_SHARE * len(sample):
+        return False
     cells_in, cells_up, cells_down = (np.floor(p / size).astype(np.int64) for p in (inliers, above, below))
     occupied = [c for c in (cells_in, cells_up, cells_down) if len(c)]
     lo = np.min([c.min(axis=0) for c in occupied], axis=0) - 1  # a border: the neighbours' keys stay distinct
