@@ -431,10 +431,14 @@ def main() -> int:
             for f in feats:
                 features[f.object_id] = f
             feature_at.append(dict(features))
-    # track ids -> sim ids, by the nearest object on the first cloud with all three tracked
-    first = next(i for i, tr in enumerate(tracked) if len(tr) == len(objects))
-    match = {tid: min(truth[first], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2] - truth[first][oid][0][:2]))
-             for tid, s in tracked[first].items()}
+    # track ids -> sim ids, by the nearest object on the first cloud where each object is some track's nearest (an
+    # object split in two has two tracks: both are its own, and it is never judged kept)
+    def nearest(k: int) -> dict:
+        return {tid: min(truth[k], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2] - truth[k][oid][0][:2]))
+                for tid, s in tracked[k].items()}
+
+    first = next(i for i in range(len(tracked)) if len(set(nearest(i).values())) == len(objects))
+    match = nearest(first)
     q_first = {tid: quat(s) for tid, s in tracked[first].items()}
     pos_rest, pos_moving, rot_rest, rot_moving = [], [], [], []
     per_object: dict[str, dict[str, list[float]]] = {oid: {"rest": [], "moving": [], "prediction": []}
