@@ -72,6 +72,9 @@ sys.path.insert(0, str(ROOT))
 
 DT_NS = 66_666_667  # 15 Hz
 OBJECTS = (("a", "box", 9001, (0.05, -0.2)), ("b", "speaker", 9002, (0.05, 0.2)), ("c", "wedge", 9003, (-0.2, 0.0)))
+VIEW = np.array([0.25, 0.3])  # m: |x|, |y| of the table area the camera sees whole
+MOVING = 0.02  # m/s: faster than this (true COM speed) counts as moving
+FRAMES_PER_PUSH = 45
 
 
 def parse_objects(text: str) -> tuple:
@@ -84,13 +87,11 @@ def parse_objects(text: str) -> tuple:
     out = []
     for (oid, _, _, xy), spec in zip(OBJECTS, specs):
         category, _, seed = spec.partition(":")
-        if category not in ALL_CATEGORIES or not seed.strip().lstrip("-").isdigit():
-            raise ValueError(f"--objects entry '{spec}' is not category:seed with a category of {ALL_CATEGORIES}")
+        if category not in ALL_CATEGORIES or not seed.strip().isdigit():
+            raise ValueError(f"--objects entry '{spec}' is not category:seed (a category of {ALL_CATEGORIES}, a "
+                             "seed >= 0)")
         out.append((oid, category, int(seed), xy))
     return tuple(out)
-VIEW = np.array([0.25, 0.3])  # m: |x|, |y| of the table area the camera sees whole
-MOVING = 0.02  # m/s: faster than this (true COM speed) counts as moving
-FRAMES_PER_PUSH = 45
 
 
 def relative_error(q_track: np.ndarray, q_track0: np.ndarray, q_true: np.ndarray, q_true0: np.ndarray) -> float:

@@ -42,8 +42,9 @@ Pipeline of `segment` (each step bounded so that a 100k-point cloud costs a few 
    above the mean of those distances + ratio * their standard deviation); at least `min_points` must remain;
 8. an object whose lowest point lies more than FLOAT_HEIGHT above the table (its plane, else z = 0 of the table
    frame) rests on something: where its x-y outline covers the points of a lower object at least FLOAT_HEIGHT
-   tall (or that object's outline covers its points) by FLOAT_OVERLAP, the two are one object. A camera above a
-   pedestal, a stool or a table sees the rim of the top and the stem or legs below, but not where they join.
+   tall that reaches up to within FLOAT_GAP of it (or that object's outline covers its points) by FLOAT_OVERLAP,
+   the two are one object. A camera above a pedestal, a stool or a table sees the rim of the top and the stem or
+   legs below, but not where they join.
 
 The k-nearest-neighbour queries run on at most `object_points` points per object: a k-d tree query over the
 whole scene cost 14-27 ms alone on the 2-core test machine, more than the budget for the whole cloud.
@@ -73,18 +74,23 @@ TABLE_FREE_SHARE = 0.1
 #: points just below it (within plane_max_offset + BAND_MARGIN; a floor lies deeper). A table's area is mostly
 #: free of both; a plane through the lower faces of objects in a table-less cloud has its inliers on those faces.
 TABLE_CUT_SHARE = 0.1
-#: ... and at most this share of the sample lies just below it: a table holds up what is on it, and what a camera
-#: sees below it is its edge, a wall's foot, mixed pixels. More is a lower surface's objects: in a cloud without the
-#: table, the plane is the flat top of a large object (a ring, a tray), its own sides and the other objects' lower
-#: parts below it.
+#: ... and, where more than this share of the sample lies just below it (a table's depth noise, a lower surface
+#: beside it, objects standing through it) ...
 TABLE_BELOW_SHARE = 0.04
+#: ... at most this share (and 3 points) lies below points more than twice plane_distance above it (in the same
+#: x-y cell or the 8 around it: clear of the table's noise). What a camera sees below a table is its edge, a wall's
+#: foot, mixed pixels; objects that stand through a plane make it the flat top of a large object (a ring, a tray)
+#: in a cloud without the table, which the cell share above misses when the plane's own area is large.
+TABLE_THROUGH_SHARE = 0.01
 #: Points farther than this from the table frame's origin (m, any axis) are not used: not a tabletop, and it keeps
 #: the cell keys of the clustering within int64 (1e30 garbage values).
 MAX_COORD = 100.0
 #: m above the table plane: an object whose lowest point lies higher is held up by something (step 8) ...
 FLOAT_HEIGHT = 0.02
-#: ... and joins the object whose points its x-y outline covers by this share (or that covers its points so).
+#: ... and joins the object whose points its x-y outline covers by this share (or that covers its points so) ...
 FLOAT_OVERLAP = 0.5
+#: ... if that object reaches up to within this (m) of its lowest point: a hand above an object is no part of it.
+FLOAT_GAP = 0.05
 #: The 13 neighbour offsets of a cell that come after it (the other 13 are their opposites).
 _HALF_OFFSETS = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
                  if (dx, dy, dz) > (0, 0, 0)]
@@ -305,9 +311,10 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
     inliers have no point above the plane in their x-y cell or the 8 around it (cells of side
     max(cluster_tolerance, 1 cm)); if it cuts through no object: at most TABLE_CUT_SHARE of its inliers' cells
     also hold points above and just below it (a plane through the lower faces of objects in a cloud without the
-    table; a table's area is free of both, a wall behind it crosses only its edge); and if at most
-    TABLE_BELOW_SHARE of the sample lies just below it (more: the flat top of a ring or a tray in a cloud without
-    the table, with its sides and the other objects' lower parts below it)."""
+    table; a table's area is free of both, a wall behind it crosses only its edge), also point by point where
+    more than TABLE_BELOW_SHARE of the sample lies just below it: at most TABLE_THROUGH_SHARE lies below points
+    above it (more: the flat top of a ring or a tray in a cloud without the table, with the other objects' lower
+    parts below it)."""
     dist = _plane_distances(sample, plane.normal[None], np.array([plane.offset]))[:, 0]
     inliers = sample[np.abs(dist) <= cfg.plane_distance, :2]
     above = sample[dist > cfg.plane_distance, :2]
@@ -317,14 +324,24 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
         return True  # only a plane: an empty table
     size = max(cfg.cluster_tolerance, 0.01)
     below = sample[(dist < -cfg.plane_distance) & (dist > -(cfg.plane_max_offset + BAND_MARGIN)), :2]
-    if len(below) > TABLE_BELOW_SHARE * len(sample):
-        return False
     cells_in, cells_up, cells_down = (np.floor(p / size).astype(np.int64) for p in (inliers, above, below))
     occupied = [c for c in (cells_in, cells_up, cells_down) if len(c)]
     lo = np.min([c.min(axis=0) for c in occupied], axis=0) - 1  # a border: the neighbours' keys stay distinct
     dims = np.max([c.max(axis=0) for c in occupied], axis=0) - lo + 2
     up = np.unique(_cell_keys(cells_up - lo, dims))
     key_in = _cell_keys(cells_in - lo, dims)
+    if len(below) > TABLE_BELOW_SHARE * len(sample):
+        # many points below: the table's depth noise, a lower surface beside it, or objects that stand through it
+        # (points clearly above the noise above them, in the same x-y cell or the 8 around it)
+        high = np.floor(sample[dist > 2.0 * cfg.plane_distance, :2] / size).astype(np.int64)
+        high_keys = np.unique(_cell_keys(high - lo, dims))
+        key_down = _cell_keys(cells_down - lo, dims)
+        through = np.zeros(len(key_down), dtype=bool)
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                through |= _contains(high_keys, key_down + dx * dims[1] + dy)[0]
+        if int(through.sum()) > max(3, TABLE_THROUGH_SHARE * len(sample)):
+            return False
     if len(below):
         # the share of the plane's cells with points above and just below: the object's faces through which a
         # plane of a table-less cloud runs, not a table's area (a wall behind it or mixed pixels: its edges)
@@ -493,40 +510,51 @@ def _covered(outline: np.ndarray, points: np.ndarray) -> float:
     """Share of the x-y `points` inside the convex hull of the x-y `outline` (0 for a degenerate outline)."""
     from scipy.spatial import Delaunay, QhullError
 
+    lo, hi = outline[:, :2].min(axis=0), outline[:, :2].max(axis=0)
+    near = np.all((points[:, :2] >= lo) & (points[:, :2] <= hi), axis=1)
+    if not near.any():  # no point within the outline's box: skip the hull
+        return 0.0
     try:
-        return float(np.mean(Delaunay(outline[:, :2]).find_simplex(points[:, :2]) >= 0))
+        return float(np.count_nonzero(Delaunay(outline[:, :2]).find_simplex(points[near, :2]) >= 0)) / len(points)
     except (QhullError, ValueError):
         return 0.0
 
 
 def _join_floating(objects: list[SceneObject], plane: TablePlane, object_points: int,
                    rng: np.random.Generator) -> list[SceneObject]:
-    """Step 8 of the module docstring: each object that floats joins the object below it; largest first."""
-    def lowest(obj: SceneObject) -> float:
-        pts = obj.cluster if obj.cluster is not None else obj.points
-        return float(np.min(pts @ plane.normal + plane.offset))
-
+    """Step 8 of the module docstring: an object that floats joins the nearest object below it that holds it up,
+    until none does; largest first. Outlines are those of the objects' samples (`points`, at most object_points)."""
     def whole(obj: SceneObject) -> np.ndarray:
         return obj.cluster if obj.cluster is not None else obj.points
 
-    def highest(obj: SceneObject) -> float:
-        return float(np.max(whole(obj) @ plane.normal + plane.offset))
+    def heights(obj: SceneObject) -> tuple[float, float]:
+        z = whole(obj) @ plane.normal + plane.offset
+        return float(z.min()), float(z.max())
 
     objects = list(objects)
-    for top in sorted(objects, key=lowest, reverse=True):  # the highest first: a stack joins from the top down
-        if lowest(top) <= FLOAT_HEIGHT or not any(o is top for o in objects):
-            continue
-        # a support stands up from the table: a cluster within FLOAT_HEIGHT of it is the table's remnant
-        shares = [(max(_covered(whole(top), whole(o)), _covered(whole(o), whole(top))), i)
-                  for i, o in enumerate(objects) if o is not top and lowest(o) < lowest(top)
-                  and highest(o) - lowest(o) > FLOAT_HEIGHT]
-        share, i = max(shares, default=(0.0, -1))
-        if share < FLOAT_OVERLAP:
-            continue
-        below = objects[i]
-        objects[i] = SceneObject(random_rows(np.concatenate([below.points, top.points]), object_points, rng),
-                                 np.concatenate([whole(below), whole(top)]))
-        del objects[next(k for k, o in enumerate(objects) if o is top)]
+    joined = True
+    while joined:  # a stack joins from the top down, one pair at a time
+        joined = False
+        span = [heights(o) for o in objects]
+        for t in sorted(range(len(objects)), key=lambda k: -span[k][0]):
+            low = span[t][0]
+            if low <= FLOAT_HEIGHT:
+                break
+            # a support stands up from the table (not the table's remnant) and reaches up to within FLOAT_GAP of
+            # the top: a hand above an object is no part of it
+            below = [i for i, (lo, hi) in enumerate(span) if i != t and lo < low and hi - lo > FLOAT_HEIGHT
+                     and low - hi <= FLOAT_GAP
+                     and max(_covered(objects[t].points, objects[i].points),
+                             _covered(objects[i].points, objects[t].points)) >= FLOAT_OVERLAP]
+            if not below:
+                continue
+            i = max(below, key=lambda k: span[k][1])  # the nearest below
+            top, base = objects[t], objects[i]
+            objects[i] = SceneObject(random_rows(np.concatenate([base.points, top.points]), object_points, rng),
+                                     np.concatenate([whole(base), whole(top)]))
+            del objects[t]
+            joined = True
+            break
     return sorted(objects, key=lambda o: -len(whole(o)))
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 import traceback
 from typing import Callable
 
@@ -29,6 +30,8 @@ from ..conventions import PARENT_PID_ENV
 
 #: s between two looks at the parent pid.
 PARENT_POLL = 0.5
+#: s: spin_once waits this long after an entity went away during a wait.
+SPIN_PAUSE = 0.01
 
 
 def watch_parent(name: str, parent: int, stop: threading.Event) -> threading.Thread:
@@ -58,8 +61,11 @@ def spin_once(executor: Executor, timeout_sec: float | None = None) -> None:
     """
     try:
         executor.spin_once(timeout_sec=timeout_sec)
-    except InvalidHandle:
-        pass
+    except InvalidHandle as exc:
+        # also what a callback raises on an entity it destroyed itself: said, and a pause so that a fault that
+        # persists does not spin a core
+        rclpy.logging.get_logger("physdyn_spin").debug(f"an entity went away during a wait: {exc}")
+        time.sleep(SPIN_PAUSE)
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None, threads: int = 0) -> int:
