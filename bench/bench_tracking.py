@@ -38,9 +38,9 @@ Track ids are matched to the sim's ids on the first cloud (nearest position). Fi
     rest) from perception's initial_state and the --steps-in tracked states after it (the predictor's steps_in
     in the perception overlay unless given: what the suite publishes last), over the same model fed the true
     initial pose and twist, on the same pushes and the same cloud (medians);
-  * per object: its position error at rest and moving (medians) and its pushes' prediction error over the true
-    state's (median of the per-push ratios, the true state's error taken as at least 1 mm): which shape's view
-    costs what;
+  * per object: its position error at rest and moving, its orientation error moving (medians) and its pushes'
+    prediction error over the true state's (median of the per-push ratios, the true state's error taken as at
+    least 1 mm): which shape's view costs what;
   * ids kept: pushes after which every track still sits on the object it was matched to (no swap, none lost),
     judged on the last of the push window's final 5 clouds that shows all three objects (a sparse object can
     miss one cloud's sample without losing its id);
@@ -442,7 +442,7 @@ def main() -> int:
     match = nearest(first)
     q_first = {tid: quat(s) for tid, s in tracked[first].items()}
     pos_rest, pos_moving, rot_rest, rot_moving = [], [], [], []
-    per_object: dict[str, dict[str, list[float]]] = {oid: {"rest": [], "moving": [], "prediction": []}
+    per_object: dict[str, dict[str, list[float]]] = {oid: {"rest": [], "moving": [], "turn": [], "prediction": []}
                                                      for oid, *_ in objects}
     for k in range(first, frames):
         for tid, s in tracked[k].items():
@@ -456,6 +456,8 @@ def main() -> int:
             moving = float(np.linalg.norm(lin[:2])) > MOVING
             (pos_moving if moving else pos_rest).append(err)
             per_object[oid]["moving" if moving else "rest"].append(err)
+            if moving:
+                per_object[oid]["turn"].append(rerr)
             (rot_moving if moving else rot_rest).append(rerr)
     inverse = {oid: tid for tid, oid in match.items()}
     detected, delays, speed_err, spin_err, pred_ratio_perc, pred_ratio_true, kept = [], [], [], [], [], [], []
@@ -558,7 +560,8 @@ def main() -> int:
     for oid, category, *_ in objects:
         figures = per_object[oid]
         print(f"  {category} ({oid}): position median {med(figures['rest'])} mm at rest, {med(figures['moving'])} mm "
-              f"moving; prediction error over the true state's, median per push {med(figures['prediction'])} "
+              f"moving, orientation {med(figures['turn'])} deg moving; prediction error over the true state's, "
+              f"median per push {med(figures['prediction'])} "
               f"({len(figures['prediction'])} pushes)")
     print(json.dumps(out))
     return 0
