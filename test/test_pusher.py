@@ -173,8 +173,8 @@ def test_one_goal_at_a_time_and_deactivate_stops_a_goal(suite):
         assert wait_for(second.done, 20.0) and not second.result().accepted  # one pusher, one goal
         # the first waits for a robot that never pushes; deactivating the node ends it at once, with the reason
         assert wait_for(lambda: pusher._busy.locked(), 20.0)
-        # asked before the goal ends: rclpy 7's action client drops a result that comes back before it has
-        # registered the request
+        # asked before the goal ends: rclpy 7's action client registers a request only after sending it, so a
+        # result that came back first would be dropped
         done = first.result().get_result_async()
         assert pusher.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
         assert wait_for(done.done, 10.0), "the goal did not stop on deactivate"
