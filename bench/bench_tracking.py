@@ -471,9 +471,7 @@ def main() -> int:
         # judged on the push window's last cloud that shows every object (one cloud may miss a sparse object)
         judged = next((j for j in range(end, end - 5, -1) if len(tracked[j]) == len(objects)), end)
         kept.append(len(tracked[judged]) == len(objects)
-                    and all(min(truth[judged], key=lambda oid: np.linalg.norm(xyz(s.pose.position)[:2]
-                                                                              - truth[judged][oid][0][:2]))
-                            == match.get(t) for t, s in tracked[judged].items()))
+                    and all(oid == match.get(t) for t, oid in nearest(judged).items()))
         if args.verbose:
             near = [(frame_of(o), o.object_id) for _, o in onsets
                     if abs(frame_of(o) - p["frame"]) < FRAMES_PER_PUSH]

@@ -407,8 +407,7 @@ class PerceptionNode(ManagedNode):
             # 'model': the head's x-y; the height of the solid under the view (the head's is 4 mm high)
             return np.array([*code.centroid[:2], com[2]]) if head else com
 
-        update = self.poses.update(t, [(object_id, obj.points if obj.cluster is None else obj.cluster)
-                                       for object_id, obj in labelled], com_of, height,
+        update = self.poses.update(t, [(object_id, obj.whole) for object_id, obj in labelled], com_of, height,
                                    lambda object_id: scene.surface(seen[object_id][0]), refine_com=not head)
         if update.notes:
             self.tracking_note = update.notes[-1]

@@ -165,6 +165,11 @@ class SceneObject:
     def centroid(self) -> np.ndarray:
         return self.points.mean(axis=0)
 
+    @property
+    def whole(self) -> np.ndarray:
+        """All its clustered points (its sample where it was made without them)."""
+        return self.cluster if self.cluster is not None else self.points
+
 
 @dataclass
 class Scene:
@@ -190,7 +195,7 @@ class Scene:
         cluster would have joined it. Its cluster (or points) when the scene keeps no points."""
         from scipy.spatial import cKDTree
 
-        pts = obj.cluster if obj.cluster is not None else obj.points
+        pts = obj.whole
         reach = self.cell
         if self.above is None or not len(self.above) or reach <= 0:
             return pts
@@ -306,6 +311,15 @@ def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np
     return sorted_keys[pos] == keys, pos
 
 
+def _near_cells(sorted_keys: np.ndarray, keys: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """For each x-y cell key of `keys`: whether it or one of the 8 cells around it is in `sorted_keys`."""
+    near = np.zeros(len(keys), dtype=bool)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            near |= _contains(sorted_keys, keys + dx * dims[1] + dy)[0]
+    return near
+
+
 def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> bool:
     """True if part of the plane lies away from the objects on it: at least TABLE_FREE_SHARE of the sample's
     inliers have no point above the plane in their x-y cell or the 8 around it (cells of side
@@ -335,11 +349,7 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
         # (points clearly above the noise above them, in the same x-y cell or the 8 around it)
         high = np.floor(sample[dist > 2.0 * cfg.plane_distance, :2] / size).astype(np.int64)
         high_keys = np.unique(_cell_keys(high - lo, dims))
-        key_down = _cell_keys(cells_down - lo, dims)
-        through = np.zeros(len(key_down), dtype=bool)
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                through |= _contains(high_keys, key_down + dx * dims[1] + dy)[0]
+        through = _near_cells(high_keys, _cell_keys(cells_down - lo, dims), dims)
         if int(through.sum()) > max(3, TABLE_THROUGH_SHARE * len(sample)):
             return False
     if len(below):
@@ -349,11 +359,7 @@ def plane_is_table(sample: np.ndarray, plane: TablePlane, cfg: SceneConfig) -> b
         down = np.unique(_cell_keys(cells_down - lo, dims))
         if (_contains(up, plane_cells)[0] & _contains(down, plane_cells)[0]).mean() > TABLE_CUT_SHARE:
             return False
-    covered = np.zeros(len(inliers), dtype=bool)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            covered |= _contains(up, key_in + dx * dims[1] + dy)[0]
-    free = int((~covered).sum())
+    free = int((~_near_cells(up, key_in, dims)).sum())
     return free >= max(3, TABLE_FREE_SHARE * len(inliers))
 
 
@@ -524,11 +530,8 @@ def _join_floating(objects: list[SceneObject], plane: TablePlane, object_points:
                    rng: np.random.Generator) -> list[SceneObject]:
     """Step 8 of the module docstring: an object that floats joins the nearest object below it that holds it up,
     until none does; largest first. Outlines are those of the objects' samples (`points`, at most object_points)."""
-    def whole(obj: SceneObject) -> np.ndarray:
-        return obj.cluster if obj.cluster is not None else obj.points
-
     def heights(obj: SceneObject) -> tuple[float, float]:
-        z = whole(obj) @ plane.normal + plane.offset
+        z = obj.whole @ plane.normal + plane.offset
         return float(z.min()), float(z.max())
 
     objects = list(objects)
@@ -551,11 +554,11 @@ def _join_floating(objects: list[SceneObject], plane: TablePlane, object_points:
             i = max(below, key=lambda k: span[k][1])  # the nearest below
             top, base = objects[t], objects[i]
             objects[i] = SceneObject(random_rows(np.concatenate([base.points, top.points]), object_points, rng),
-                                     np.concatenate([whole(base), whole(top)]))
+                                     np.concatenate([base.whole, top.whole]))
             del objects[t]
             joined = True
             break
-    return sorted(objects, key=lambda o: -len(whole(o)))
+    return sorted(objects, key=lambda o: -len(o.whole))
 
 
 def preprocess(points: np.ndarray, cfg: SceneConfig, rng: np.random.Generator | None = None) -> np.ndarray:
